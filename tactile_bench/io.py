@@ -1,0 +1,88 @@
+"""Atomic writes and content hashes: nothing half-written, corrupt caches detected."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+
+
+def _atomic(path: Path, write: Callable[[Path], None]) -> Path:
+    """Write through a temporary file in the same directory, then rename over ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def atomic_write_text(path: Path, text: str) -> Path:
+    """Write a text file atomically."""
+    return _atomic(path, lambda tmp: tmp.write_text(text))
+
+
+def atomic_write_json(path: Path, obj: Any) -> Path:
+    """Write JSON atomically, pretty-printed so results diff well in git."""
+    return atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+
+
+def atomic_torch_save(obj: Any, path: Path) -> Path:
+    """torch.save atomically."""
+    return _atomic(path, lambda tmp: torch.save(obj, tmp))
+
+
+def file_sha256(path: Path, chunk: int = 1 << 20) -> str:
+    """Content hash of a file, recorded in manifests and checked before a cached file is reused."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        while block := handle.read(chunk):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def json_sha256(obj: Any) -> str:
+    """Stable hash of a JSON-able value (sorted keys), used to key cached stages."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def atomic_write_npz(path: Path, **arrays: Any) -> Path:
+    """np.savez atomically (uncompressed: these caches are read far more often than written)."""
+    import numpy as np
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as handle:
+            np.savez(handle, **arrays)
+
+    return _atomic(path, write)
+
+
+def load_npz(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
+    """Read the named arrays of an .npz, turning a missing/corrupt file into a one-line error."""
+    import zipfile
+
+    import numpy as np
+
+    from tactile_bench.errors import TactileBenchError
+
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in keys if k not in data.files]
+            if missing:
+                raise TactileBenchError(f"{path}: missing arrays {missing}")
+            return {k: data[k] for k in keys}
+    except FileNotFoundError:
+        raise TactileBenchError(f"{path}: file not found") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise TactileBenchError(f"{path}: corrupt or truncated ({exc})") from None

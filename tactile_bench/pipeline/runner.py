@@ -1,0 +1,141 @@
+"""Run a recipe's stages in order, each cached under a directory keyed by its config and inputs.
+
+A stage's key hashes its kind, config, the run settings and the *content*
+hashes of the stages it reads, so an upstream change reruns everything
+downstream and nothing else. A stage is finished when its ``_done.json``
+manifest exists and every file it lists still has the recorded hash: a
+corrupted or truncated entry is rebuilt, never used. Work in progress lives in
+the same directory (Lightning checkpoints), so a killed run resumes there.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import tactile_bench
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
+from tactile_bench.pipeline.recipe import Recipe, Stage
+from tactile_bench.pipeline.stages.base import StageContext, StageResult
+
+log = logging.getLogger("tactile_bench")
+DONE = "_done.json"
+
+
+def stage_key(recipe: Recipe, stage: Stage, inputs: dict[str, list[StageResult]]) -> str:
+    """Short hash of everything that determines a stage's outputs."""
+    return json_sha256(
+        {
+            "kind": stage.kind.name,
+            "config": stage.config.model_dump(mode="json"),
+            "inputs": {slot: [r.manifest_hash for r in rs] for slot, rs in sorted(inputs.items())},
+            "seed": recipe.seed,
+            "trainer": recipe.trainer,
+            "version": tactile_bench.__version__,
+        }
+    )[:12]
+
+
+def read_done(directory: Path) -> StageResult | None:
+    """A finished stage's result, or None when absent or any listed file fails its hash."""
+    manifest_path = directory / DONE
+    if not manifest_path.exists():
+        return None
+    try:
+        manifest = json.loads(manifest_path.read_text())
+        for name, entry in manifest["outputs"].items():
+            file = directory / entry["file"]
+            if not file.exists() or file_sha256(file) != entry["sha256"]:
+                log.warning("cache entry %s: %s is missing or corrupted; rebuilding", directory, name)
+                return None
+        return StageResult(
+            name=manifest["name"],
+            kind=manifest["kind"],
+            directory=directory,
+            outputs={k: v["file"] for k, v in manifest["outputs"].items()},
+            metrics=manifest["metrics"],
+            manifest_hash=json_sha256(manifest["outputs"]),
+            wall_time_s=manifest["wall_time_s"],
+            cached=True,
+        )
+    except (OSError, ValueError, KeyError, TypeError):
+        log.warning("cache entry %s: unreadable manifest; rebuilding", directory)
+        return None
+
+
+def _finish(stage: Stage, directory: Path, outputs: dict[str, str], metrics: dict[str, Any],
+            wall: float) -> StageResult:
+    listed = {}
+    for name, rel in outputs.items():
+        file = directory / rel
+        if not file.exists():
+            raise TactileBenchError(f"stage {stage.name!r} did not write its output {name!r} ({rel})")
+        listed[name] = {"file": rel, "sha256": file_sha256(file)}
+    manifest = {
+        "name": stage.name,
+        "kind": stage.kind.name,
+        "config": stage.config.model_dump(mode="json"),
+        "outputs": listed,
+        "metrics": metrics,
+        "wall_time_s": round(wall, 3),
+        "version": tactile_bench.__version__,
+    }
+    atomic_write_json(directory / DONE, manifest)
+    return StageResult(stage.name, stage.kind.name, directory, outputs, metrics,
+                       json_sha256(listed), wall)
+
+
+def _publish(result: StageResult, names: tuple[str, ...], run_dir: Path) -> None:
+    for name in names:
+        if name in result.outputs:
+            src = result.path(name)
+            tmp = run_dir / f".{src.name}.tmp"
+            shutil.copyfile(src, tmp)
+            tmp.replace(run_dir / src.name)
+
+
+def run_recipe(recipe: Recipe, force: tuple[str, ...] = (), progress: bool = True) -> list[StageResult]:
+    """Run (or reuse) every stage; returns their results in order."""
+    for name in force:
+        recipe.stage(name)  # unknown names fail before any work
+    recipe.run_dir.mkdir(parents=True, exist_ok=True)
+    results: dict[str, StageResult] = {}
+    for stage in recipe.stages:
+        inputs = {slot: [results[r] for r in refs] for slot, refs in stage.inputs.items()}
+        directory = recipe.run_dir / f"{stage.name}-{stage_key(recipe, stage, inputs)}"
+        if stage.name in force and directory.exists():
+            shutil.rmtree(directory)
+        result = read_done(directory)
+        if result is not None:
+            log.info("stage %s: finished before, reusing %s", stage.name, directory)
+        else:
+            (directory / DONE).unlink(missing_ok=True)
+            directory.mkdir(parents=True, exist_ok=True)
+            log.info("stage %s (%s): running in %s", stage.name, stage.kind.name, directory)
+            ctx = StageContext(stage.name, directory, stage.config, inputs, recipe.seed,
+                               dict(recipe.trainer), recipe.run_dir, progress)
+            start = time.perf_counter()
+            outputs, metrics = stage.kind.run(ctx)
+            result = _finish(stage, directory, outputs, metrics, time.perf_counter() - start)
+            log.info("stage %s: done in %.1f s", stage.name, result.wall_time_s)
+        _publish(result, stage.kind.publish, recipe.run_dir)
+        results[stage.name] = result
+    atomic_write_json(
+        recipe.run_dir / "run.json",
+        {
+            "recipe": str(recipe.path),
+            "name": recipe.name,
+            "seed": recipe.seed,
+            "stages": [
+                {"name": r.name, "kind": r.kind, "directory": r.directory.name,
+                 "wall_time_s": r.wall_time_s, "cached": r.cached}
+                for r in results.values()
+            ],
+        },
+    )
+    return list(results.values())

@@ -1,0 +1,80 @@
+"""What a stage kind is, and what a running stage sees."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+
+class StageConfig(BaseModel):
+    """Base of every stage config: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+@dataclass
+class StageResult:
+    """A finished stage: where its files are, what they are, and a few figures it measured."""
+
+    name: str
+    kind: str
+    directory: Path
+    outputs: dict[str, str]
+    metrics: dict[str, Any]
+    manifest_hash: str
+    wall_time_s: float
+    cached: bool = False
+
+    def path(self, output: str) -> Path:
+        """Absolute path of a named output file."""
+        return self.directory / self.outputs[output]
+
+
+@dataclass
+class StageContext:
+    """Everything a stage may read: its directory, config, upstream results and run settings."""
+
+    name: str
+    directory: Path
+    config: Any
+    inputs: dict[str, list[StageResult]]
+    seed: int
+    trainer: dict[str, Any]
+    run_dir: Path
+    progress: bool = True
+
+    def input(self, slot: str) -> StageResult:
+        """The single stage feeding ``slot``."""
+        return self.inputs[slot][0]
+
+    def optional_input(self, slot: str) -> StageResult | None:
+        results = self.inputs.get(slot) or []
+        return results[0] if results else None
+
+
+def _no_check(config: Any, base_dir: Path) -> None:
+    return None
+
+
+@dataclass(frozen=True)
+class StageKind:
+    """A registered kind of stage: typed config, named inputs, and the function that runs it.
+
+    ``run`` returns ``(outputs, metrics)``: outputs maps names to files it wrote
+    in ``ctx.directory`` (hashed into the manifest); metrics are JSON figures.
+    ``publish`` names outputs copied to the run directory's root (results, reports).
+    ``check`` validates a config against the world (files, registries) before any
+    work starts and raises TactileBenchError("key: problem").
+    """
+
+    name: str
+    description: str
+    config_model: type[BaseModel]
+    run: Callable[[StageContext], tuple[dict[str, str], dict[str, Any]]]
+    input_slots: dict[str, bool] = field(default_factory=dict)
+    check: Callable[[Any, Path], None] = _no_check
+    publish: tuple[str, ...] = ()

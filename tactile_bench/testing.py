@@ -1,0 +1,80 @@
+"""A contract every translator must pass, as a pytest mixin plugin authors can reuse.
+
+```python
+from tactile_bench.testing import TranslatorContract
+
+class TestMyTranslator(TranslatorContract):
+    name = "my_translator"          # as registered in the entry-point group
+    tiny_config = {"max_steps": 2}  # small enough to fit in seconds on a CPU
+```
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, ClassVar
+
+import torch
+
+from tactile_bench.translators import Translator, create_translator, translator_class
+
+
+def tiny_pairs(n: int = 8, size: int = 32, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Synthetic (depth mm, foreground) pairs: a dome per sample and a foreground tinted by it."""
+    gen = torch.Generator().manual_seed(seed)
+    ys, xs = torch.meshgrid(torch.linspace(-1, 1, size), torch.linspace(-1, 1, size), indexing="ij")
+    centres = torch.rand(n, 2, generator=gen) - 0.5
+    r2 = (xs - centres[:, 0, None, None]) ** 2 + (ys - centres[:, 1, None, None]) ** 2
+    depth = (0.8 - 4.0 * r2).clamp(min=0).unsqueeze(1)
+    tint = torch.tensor([0.3, -0.2, 0.1]).view(1, 3, 1, 1)
+    foreground = 0.5 + tint * depth
+    return depth, foreground
+
+
+class TranslatorContract:
+    """Construct, fit a few steps, translate, save/load, determinism: for one registered name."""
+
+    name: ClassVar[str] = ""
+    tiny_config: ClassVar[dict[str, Any]] = {}
+    size: ClassVar[int] = 32
+
+    def make(self) -> Translator:
+        return create_translator(self.name, dict(self.tiny_config))
+
+    def fitted(self, tmp_path: Path) -> Translator:
+        translator = self.make()
+        depth, foreground = tiny_pairs(size=self.size)
+        translator.fit_pairs(depth, foreground, tmp_path, {"enable_progress_bar": False})
+        return translator
+
+    def test_registered_under_its_name(self) -> None:
+        assert translator_class(self.name).name == self.name
+
+    def test_translate_shape_and_range(self, tmp_path: Path) -> None:
+        translator = self.fitted(tmp_path)
+        depth, _ = tiny_pairs(n=3, size=self.size, seed=1)
+        background = torch.full((3, self.size, self.size), 120.0)
+        image = translator.translate(depth, background, torch.Generator().manual_seed(0))
+        assert image.shape == (3, 3, self.size, self.size)
+        assert image.dtype == torch.float32
+        assert torch.isfinite(image).all()
+        assert image.min() >= 0.0 and image.max() <= 255.0
+
+    def test_save_load_round_trip(self, tmp_path: Path) -> None:
+        translator = self.fitted(tmp_path)
+        path = translator.save(tmp_path / "translator.pt")
+        loaded = type(translator).load(path)
+        depth, _ = tiny_pairs(n=2, size=self.size, seed=2)
+        background = torch.full((3, self.size, self.size), 100.0)
+        before = translator.translate(depth, background, torch.Generator().manual_seed(3))
+        after = loaded.translate(depth, background, torch.Generator().manual_seed(3))
+        torch.testing.assert_close(before, after)
+
+    def test_deterministic_under_seed(self, tmp_path: Path) -> None:
+        depth, _ = tiny_pairs(n=2, size=self.size, seed=4)
+        background = torch.full((3, self.size, self.size), 90.0)
+        outputs = []
+        for run in range(2):
+            translator = self.fitted(tmp_path / f"run{run}")
+            outputs.append(translator.translate(depth, background, torch.Generator().manual_seed(5)))
+        torch.testing.assert_close(outputs[0], outputs[1])

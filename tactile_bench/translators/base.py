@@ -1,0 +1,166 @@
+"""The one interface every translator (built-in or plugin) implements.
+
+A translator turns simulated contact depth into a tactile image of a real
+sensor. It is a LightningModule so that fitting it is an ordinary Lightning
+fit (loggers, checkpoints, precision, strategies all come for free), and it is
+fitted on background-free pairs: (depth, real foreground), where foreground =
+(image - no-contact image) / 255 + 0.5 as in the paper's code. At inference
+any sensor's background is added back, so one model serves every unit.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, ClassVar
+
+import lightning as L
+import torch
+from lightning.pytorch.loggers import Logger
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from torch.utils.data import DataLoader, TensorDataset
+
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.io import atomic_torch_save
+
+CHECKPOINT_FORMAT = 1
+
+
+class TranslatorConfig(BaseModel):
+    """Base of every translator's typed config: unknown keys are errors, not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid")
+    seed: int = 0
+    batch_size: int = Field(default=32, ge=1)
+    max_steps: int = Field(default=200, ge=0)
+
+
+def foreground_to_image(foreground: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+    """Add a background back to a foreground: the inverse of the paper's background removal."""
+    return ((foreground - 0.5) * 255.0 + background).clamp(0.0, 255.0)
+
+
+def image_to_foreground(image: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+    """Remove the no-contact frame so models see only what the contact changed."""
+    return (image - background) / 255.0 + 0.5
+
+
+class Translator(L.LightningModule):
+    """Depth (N, 1, S, S) in mm -> tactile image (N, 3, S, S) in 0..255.
+
+    Subclasses set ``name``, ``Config`` and implement ``translate_foreground``.
+    Learning translators also implement ``training_step`` and
+    ``configure_optimizers``; ``trainable = False`` marks those with nothing to fit.
+    """
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type[TranslatorConfig]] = TranslatorConfig
+    trainable: ClassVar[bool] = True
+
+    def __init__(self, config: TranslatorConfig | dict[str, Any] | None = None) -> None:
+        super().__init__()
+        self.config = self.parse_config(config)
+
+    @classmethod
+    def parse_config(cls, config: TranslatorConfig | dict[str, Any] | None) -> TranslatorConfig:
+        """Validate a config dict against the translator's schema, naming the bad key."""
+        if isinstance(config, cls.Config):
+            return config
+        try:
+            return cls.Config(**(config or {}))
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            key = ".".join(str(part) for part in first["loc"])
+            raise TactileBenchError(
+                f"translator {cls.name!r}: config key {key!r}: {first['msg']}"
+            ) from None
+
+    def translate_foreground(
+        self, depth: torch.Tensor, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """Depth -> foreground (N, 3, S, S) around 0.5; the part each translator defines."""
+        raise NotImplementedError
+
+    def fit_pairs(
+        self,
+        depth: torch.Tensor,
+        foreground: torch.Tensor,
+        out_dir: Path,
+        trainer: dict[str, Any] | None = None,
+        loggers: list[Logger] | None = None,
+    ) -> None:
+        """Fit on (depth, real foreground) pairs with a Lightning Trainer.
+
+        ``trainer`` passes straight through to ``lightning.Trainer`` (accelerator,
+        devices, strategy, precision ...), so the same call scales out.
+        """
+        if not self.trainable or self.config.max_steps == 0:
+            return
+        L.seed_everything(self.config.seed, workers=True, verbose=False)
+        loader = DataLoader(
+            TensorDataset(depth.float(), foreground.float()),
+            batch_size=self.config.batch_size,
+            shuffle=True,
+            drop_last=len(depth) > self.config.batch_size,
+            generator=torch.Generator().manual_seed(self.config.seed),
+        )
+        settings: dict[str, Any] = {
+            "max_steps": self.config.max_steps,
+            "max_epochs": -1,
+            "logger": loggers if loggers is not None else False,
+            "enable_checkpointing": False,
+            "enable_model_summary": False,
+            "default_root_dir": str(out_dir),
+            "log_every_n_steps": 10,
+        }
+        settings.update(trainer or {})
+        L.Trainer(**settings).fit(self, loader)
+
+    @torch.no_grad()
+    def translate(
+        self,
+        depth: torch.Tensor,
+        background: torch.Tensor,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Depth plus any sensor's no-contact frame -> image in 0..255."""
+        was_training = self.training
+        self.eval()
+        try:
+            foreground = self.translate_foreground(depth.to(self.device), generator)
+        finally:
+            self.train(was_training)
+        return foreground_to_image(foreground.float().cpu(), background.float().cpu())
+
+    def save(self, path: str | Path) -> Path:
+        """Write config and weights atomically, tagged with the translator name and format."""
+        payload = {
+            "translator": self.name,
+            "format": CHECKPOINT_FORMAT,
+            "config": self.config.model_dump(mode="json"),
+            "state_dict": {k: v.detach().cpu() for k, v in self.state_dict().items()},
+        }
+        return atomic_torch_save(payload, Path(path))
+
+    @classmethod
+    def load(cls, path: str | Path) -> Translator:
+        """Load a checkpoint written by ``save``; a checkpoint of another translator is an error."""
+        path = Path(path)
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+        except FileNotFoundError:
+            raise TactileBenchError(f"{path}: translator checkpoint not found") from None
+        except Exception as exc:  # corrupt or foreign file: one line, not a traceback
+            raise TactileBenchError(f"{path}: not a readable translator checkpoint ({exc})") from None
+        if not isinstance(payload, dict) or "translator" not in payload:
+            raise TactileBenchError(f"{path}: not a tactile_bench translator checkpoint")
+        if payload["translator"] != cls.name:
+            raise TactileBenchError(
+                f"{path}: checkpoint of translator {payload['translator']!r}, not {cls.name!r}"
+            )
+        if payload.get("format") != CHECKPOINT_FORMAT:
+            raise TactileBenchError(
+                f"{path}: checkpoint format {payload.get('format')!r}, expected {CHECKPOINT_FORMAT}"
+            )
+        translator = cls(payload["config"])
+        translator.load_state_dict(payload["state_dict"])
+        return translator

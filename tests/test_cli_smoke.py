@@ -1,0 +1,45 @@
+"""The smoke recipe end to end, in-process, and the listings."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+
+from tactile_bench.cli import main
+
+
+def test_smoke_recipe_end_to_end(repo: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    run_dir = tmp_path / "smoke"
+    args = ["fit", str(repo / "recipes" / "smoke.yaml"), "--run-dir", str(run_dir), "--no-progress"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    results = json.loads((run_dir / "results.json").read_text())
+    (row,) = results["rows"]
+    assert row["row"] == "sim"
+    for metric in ("accuracy", "precision", "recall"):
+        assert 0.0 <= row[metric]["mean"] <= 1.0
+    assert row["extra"]["n_test"] == 60
+    assert (run_dir / "results.md").read_text() in out  # the table is printed
+    assert list(run_dir.glob("braille-*/preview.png"))
+
+    start = time.perf_counter()
+    assert main(args) == 0  # finished: nothing is redone
+    assert time.perf_counter() - start < 20
+    assert "cached" in capsys.readouterr().out
+
+
+def test_list_everything(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for word in ("sim", "colour_match", "braille_data", "classify", "effects"):
+        assert word in out
+
+
+def test_help(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--help"]) == 0
+    assert "fit" in capsys.readouterr().out
+    assert main(["fit", "--help"]) == 0
+    assert "--force" in capsys.readouterr().out

@@ -1,0 +1,86 @@
+"""The recipe runner's cache: reruns skip, --force redoes, corruption and kills rebuild."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tactile_bench.pipeline import stages as stage_registry
+from tactile_bench.pipeline.recipe import load_recipe
+from tactile_bench.pipeline.runner import DONE, run_recipe
+from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+
+CALLS: list[str] = []
+
+
+class CountConfig(StageConfig):
+    value: int = 1
+
+
+def _produce(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+    CALLS.append(ctx.name)
+    upstream = sum(int(r.path("out").read_text()) for rs in ctx.inputs.values() for r in rs)
+    (ctx.directory / "out.txt").write_text(str(ctx.config.value + upstream))
+    return {"out": "out.txt"}, {"value": ctx.config.value + upstream}
+
+
+@pytest.fixture
+def recipe_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    monkeypatch.setitem(
+        stage_registry.STAGES, "count",
+        StageKind("count", "test stage", CountConfig, _produce, {"up": False}),
+    )
+    CALLS.clear()
+    path = tmp_path / "r.yaml"
+    path.write_text(
+        f"name: r\nrun_dir: {tmp_path / 'run'}\nstages:\n"
+        "  - {name: a, kind: count, config: {value: 2}}\n"
+        "  - {name: b, kind: count, inputs: {up: a}, config: {value: 3}}\n"
+    )
+    return path
+
+
+def test_rerun_does_no_work(recipe_path: Path) -> None:
+    first = run_recipe(load_recipe(recipe_path))
+    assert CALLS == ["a", "b"] and first[-1].metrics["value"] == 5
+    second = run_recipe(load_recipe(recipe_path))
+    assert CALLS == ["a", "b"]
+    assert all(r.cached for r in second)
+
+
+def test_force_redoes_one_stage(recipe_path: Path) -> None:
+    run_recipe(load_recipe(recipe_path))
+    run_recipe(load_recipe(recipe_path), force=("b",))
+    assert CALLS == ["a", "b", "b"]
+
+
+def test_config_change_reruns_downstream_only(recipe_path: Path) -> None:
+    run_recipe(load_recipe(recipe_path))
+    results = run_recipe(load_recipe(recipe_path, ["b.value=10"]))
+    assert CALLS == ["a", "b", "b"] and results[-1].metrics["value"] == 12
+    results = run_recipe(load_recipe(recipe_path, ["a.value=4"]))
+    assert CALLS == ["a", "b", "b", "a", "b"] and results[-1].metrics["value"] == 7
+
+
+def test_corrupted_output_is_rebuilt(recipe_path: Path) -> None:
+    first = run_recipe(load_recipe(recipe_path))
+    first[0].path("out").write_text("999")
+    second = run_recipe(load_recipe(recipe_path))
+    assert CALLS == ["a", "b", "a"]
+    assert second[0].metrics["value"] == 2 and not second[0].cached
+    assert second[1].cached  # a's content is back to what b was built from
+
+
+def test_killed_stage_resumes(recipe_path: Path) -> None:
+    first = run_recipe(load_recipe(recipe_path))
+    (first[1].directory / DONE).unlink()  # as if killed before b finished
+    run_recipe(load_recipe(recipe_path))
+    assert CALLS == ["a", "b", "b"]
+
+
+def test_run_json_records_stages(recipe_path: Path, tmp_path: Path) -> None:
+    run_recipe(load_recipe(recipe_path))
+    text = (tmp_path / "run" / "run.json").read_text()
+    assert '"a"' in text and '"wall_time_s"' in text
