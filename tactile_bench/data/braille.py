@@ -1,0 +1,255 @@
+"""The braille data sets: (sim depth, sim image, real image) triples of the same contacts.
+
+The paper pairs every real DIGIT press with TACTO's depth of the same commanded contact. We
+do the same with the simulator (``SimOptics`` over the depth) and a "real" sensor (by default
+the surrogate DIGIT), keeping the *sim* depth, never the real sensor's internal geometry: a
+translator conditions on what TACTO gives, exactly as in the paper.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Protocol
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.geometry.contacts import Poses, classifier_protocol, finetune_test_protocol
+from tactile_bench.io import atomic_write_npz, load_npz
+from tactile_bench.sensor.depth import GelSpec, render_height, to_depth
+from tactile_bench.sensor.heightfield import HeightFieldBank
+from tactile_bench.sensor.optics import SimOptics
+
+_POSE_KEYS = ("labels", "x_mm", "y_mm", "yaw_deg", "press_mm")
+_KEYS = ("depth", "sim", "real", "sim_background", "real_background") + tuple(
+    f"pose_{k}" for k in _POSE_KEYS
+)
+
+
+class RealSensor(Protocol):
+    """What the builder needs of the "real" sensor (e.g. ``sensor.surrogate.SurrogateDigit``)."""
+
+    def background(self, size: int) -> torch.Tensor: ...
+
+    def render(
+        self,
+        bank: HeightFieldBank,
+        poses: Poses,
+        gel: GelSpec,
+        generator: torch.Generator | None,
+    ) -> torch.Tensor: ...
+
+
+def _to_uint8(image: torch.Tensor) -> torch.Tensor:
+    if image.dtype == torch.uint8:
+        return image
+    return image.float().round().clamp(0, 255).to(torch.uint8)
+
+
+@dataclass
+class BrailleSet:
+    """N contacts: sim depth (N,1,S,S) mm, sim and real images (N,3,S,S) uint8, and poses.
+
+    ``labels`` index the character tuple the set was built with (``CHARACTERS`` by default).
+    """
+
+    depth: torch.Tensor
+    sim: torch.Tensor
+    real: torch.Tensor
+    labels: torch.Tensor
+    poses: Poses
+    sim_background: torch.Tensor
+    real_background: torch.Tensor
+
+    def __post_init__(self) -> None:
+        n = len(self.labels)
+        if not all(len(x) == n for x in (self.depth, self.sim, self.real, self.poses)):
+            raise TactileBenchError("BrailleSet: depth, sim, real, labels and poses differ in N")
+        if self.depth.dim() != 4 or self.depth.shape[1] != 1:
+            raise TactileBenchError(f"BrailleSet: depth must be (N,1,S,S), got {self.depth.shape}")
+        for name in ("sim", "real"):
+            if getattr(self, name).shape[1:] != (3, *self.depth.shape[2:]):
+                raise TactileBenchError(f"BrailleSet: {name} must be (N,3,S,S) like depth")
+        for name in ("sim_background", "real_background"):
+            if getattr(self, name).shape != (3, *self.depth.shape[2:]):
+                raise TactileBenchError(f"BrailleSet: {name} must be (3,S,S)")
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    def foreground(self, kind: Literal["sim", "real"]) -> torch.Tensor:
+        """(image - background) / 255 + 0.5 as float32 (N,3,S,S): the models' input."""
+        if kind not in ("sim", "real"):
+            raise TactileBenchError(
+                f"BrailleSet.foreground: kind must be 'sim' or 'real', not {kind!r}"
+            )
+        image, background = getattr(self, kind), getattr(self, f"{kind}_background")
+        return (image.float() - background.float()) / 255.0 + 0.5
+
+    def subset(self, idx: torch.Tensor | slice | Sequence[int]) -> BrailleSet:
+        """The contacts at ``idx`` (indices, mask or slice); backgrounds are shared."""
+        if not isinstance(idx, slice):
+            idx = torch.as_tensor(idx)
+            idx = idx if idx.dtype == torch.bool else idx.long()
+        return BrailleSet(
+            depth=self.depth[idx],
+            sim=self.sim[idx],
+            real=self.real[idx],
+            labels=self.labels[idx],
+            poses=self.poses.index(idx),
+            sim_background=self.sim_background,
+            real_background=self.real_background,
+        )
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """One uncompressed .npz, written to a temporary file and renamed into place."""
+        arrays = {
+            "depth": self.depth.float().numpy(),
+            "sim": self.sim.numpy(),
+            "real": self.real.numpy(),
+            "sim_background": self.sim_background.numpy(),
+            "real_background": self.real_background.numpy(),
+        }
+        arrays.update({f"pose_{k}": getattr(self.poses, k).numpy() for k in _POSE_KEYS})
+        return atomic_write_npz(Path(path), **arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> BrailleSet:
+        """Read a set written by ``save``; a missing or corrupt file is a ``TactileBenchError``."""
+        a = load_npz(Path(path), _KEYS)
+        try:
+            poses = Poses(**{k: torch.from_numpy(a[f"pose_{k}"]) for k in _POSE_KEYS})
+            return cls(
+                depth=torch.from_numpy(a["depth"]).float(),
+                sim=_to_uint8(torch.from_numpy(a["sim"])),
+                real=_to_uint8(torch.from_numpy(a["real"])),
+                labels=poses.labels,
+                poses=poses,
+                sim_background=_to_uint8(torch.from_numpy(a["sim_background"])),
+                real_background=_to_uint8(torch.from_numpy(a["real_background"])),
+            )
+        except (TactileBenchError, RuntimeError, TypeError, ValueError) as exc:
+            raise TactileBenchError(f"{path}: not a valid braille set ({exc})") from None
+
+
+def _quotas(total: int, groups: int, rng: np.random.Generator) -> np.ndarray:
+    """``total`` split over ``groups`` as evenly as possible; the remainder goes to random ones."""
+    q = np.full(groups, total // groups)
+    q[rng.choice(groups, total % groups, replace=False)] += 1
+    return q
+
+
+def draw_disjoint(
+    labels: torch.Tensor, sizes: Sequence[int], n_classes: int, seed: int
+) -> list[torch.Tensor]:
+    """Disjoint, per-class stratified draws of ``sizes`` indices from ``labels``; seeded."""
+    rng = np.random.default_rng(seed)
+    quotas = [_quotas(n, n_classes, rng) for n in sizes]
+    picks: list[list[np.ndarray]] = [[] for _ in sizes]
+    lab = labels.numpy()
+    for c in range(n_classes):
+        pool = rng.permutation(np.flatnonzero(lab == c))
+        need = sum(int(q[c]) for q in quotas)
+        if need > len(pool):
+            raise TactileBenchError(
+                f"braille sets: {need} contacts of class {c} requested, the grid has {len(pool)}"
+            )
+        start = 0
+        for k, q in enumerate(quotas):
+            picks[k].append(pool[start : start + int(q[c])])
+            start += int(q[c])
+    return [torch.from_numpy(np.sort(np.concatenate(p))).long() for p in picks]
+
+
+def render_braille_set(
+    bank: HeightFieldBank,
+    poses: Poses,
+    gel: GelSpec,
+    sim_optics: SimOptics,
+    sim_background: torch.Tensor,
+    real_sensor: RealSensor,
+    real_background: torch.Tensor,
+    sim_generator: torch.Generator,
+    real_generator: torch.Generator,
+    chunk: int = 512,
+    bar: tqdm | None = None,
+) -> BrailleSet:
+    """Render ``poses`` with the simulator (depth and image) and the real sensor, in chunks."""
+    depth, sim, real = [], [], []
+    for k in range(0, len(poses), chunk):
+        part = poses.index(slice(k, k + chunk))
+        d = to_depth(render_height(bank, part, gel), gel)
+        depth.append(d)
+        sim.append(_to_uint8(sim_optics.render(d, sim_background.float(), sim_generator, gel)))
+        r = real_sensor.render(bank, part, gel, real_generator)
+        real.append(_to_uint8(r[0] if isinstance(r, tuple) else r))
+        if bar is not None:
+            bar.update(len(part))
+    s = gel.size
+    return BrailleSet(
+        depth=torch.cat(depth) if depth else torch.zeros(0, 1, s, s),
+        sim=torch.cat(sim) if sim else torch.zeros(0, 3, s, s, dtype=torch.uint8),
+        real=torch.cat(real) if real else torch.zeros(0, 3, s, s, dtype=torch.uint8),
+        labels=poses.labels,
+        poses=poses,
+        sim_background=sim_background,
+        real_background=real_background,
+    )
+
+
+def build_braille_sets(
+    bank: HeightFieldBank,
+    gel: GelSpec,
+    sim_optics: SimOptics,
+    sim_background: torch.Tensor,
+    real_sensor: RealSensor,
+    seed: int,
+    chars: Sequence[str] = CHARACTERS,
+    n_finetune: int = 1080,
+    n_test: int = 837,
+    progress: bool = True,
+    chunk: int = 512,
+) -> dict[str, BrailleSet]:
+    """The paper's three sets: ``finetune`` and ``test`` and ``classifier``.
+
+    ``finetune`` and ``test`` are disjoint draws, stratified per character, from the
+    fine-tune/test grid (180 contacts a character); ``classifier`` is the whole classifier
+    grid (396 a character). Each set's selection, sim noise and real-sensor randomness come
+    from its own stream spawned from ``seed``, so one set does not shift when another's size
+    changes.
+    """
+    chars = tuple(chars)
+    if tuple(bank.chars) != chars:
+        raise TactileBenchError(
+            f"build_braille_sets: bank holds {''.join(bank.chars)!r}, asked for {''.join(chars)!r}"
+        )
+    select, *streams = np.random.SeedSequence(seed).spawn(7)
+    grid = finetune_test_protocol(chars)
+    ft_idx, te_idx = draw_disjoint(
+        grid.labels, (n_finetune, n_test), len(chars), int(select.generate_state(1)[0])
+    )
+    poses = {
+        "finetune": grid.index(ft_idx),
+        "test": grid.index(te_idx),
+        "classifier": classifier_protocol(chars),
+    }
+    sim_bg = _to_uint8(torch.as_tensor(sim_background))
+    real_bg = _to_uint8(real_sensor.background(gel.size))
+    total = sum(len(p) for p in poses.values())
+    out = {}
+    with tqdm(total=total, desc="braille sets", unit="contact", disable=not progress) as bar:
+        for k, (name, p) in enumerate(poses.items()):
+            gens = [
+                torch.Generator().manual_seed(int(streams[2 * k + j].generate_state(1)[0]))
+                for j in range(2)
+            ]
+            out[name] = render_braille_set(
+                bank, p, gel, sim_optics, sim_bg, real_sensor, real_bg, *gens, chunk, bar
+            )
+    return out
