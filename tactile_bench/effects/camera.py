@@ -1,0 +1,258 @@
+"""Camera-stage effects: lens, sensor, image processor and video stream.
+
+They act on the image (N, 3, S, S), 0..255, at the model resolution, in the order defocus
+-> vignetting -> noise -> gamma / white balance -> compression. Noise levels refer to frames
+as stored (after the paper's resize to S x S). The deterministic ones also act on the
+unit's no-contact frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from functools import lru_cache
+
+import torch
+import torch.nn.functional as F
+
+from tactile_bench.effects.base import (
+    Effect,
+    EffectContext,
+    Param,
+    ParamValue,
+    as_tensor,
+    gaussian_blur,
+    pixel_grid,
+    randn,
+    scalar,
+)
+
+
+class DefocusBlur(Effect):
+    name = "defocus_blur"
+    stage = "camera"
+    description = (
+        "The DIGIT's fixed-focus lens sits about 22 mm behind a domed gel several mm thick, "
+        "so not all of the surface is in focus: edges are spread by a point-spread function "
+        "wider than a pixel. Modelled as an isotropic Gaussian PSF on the gel plane."
+    )
+    _src = "estimate: ~1.5 QVGA px (0.11 mm) PSF of a fixed-focus M7 lens over a 4.6 mm domed gel"
+    params = (Param("sigma_mm", "mm", 0.12, 0.0, 1.0, 0.0, _src, "PSF sigma on the gel"),)
+    differentiable = ("sigma_mm",)
+
+    def _apply(
+        self,
+        x: torch.Tensor,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> torch.Tensor:
+        dx, dy = ctx.mm_per_px(x)
+        s = as_tensor(p["sigma_mm"])
+        return gaussian_blur(x, s / dx, s / dy)
+
+
+class Vignetting(Effect):
+    name = "vignetting"
+    stage = "camera"
+    description = (
+        "Brightness falls off towards the edges of the view: off-axis light reaches the "
+        "sensor obliquely (the cos^4 law) and the LEDs light the rim less. Relative to the "
+        "measured frame (which already carries its own), a unit's extra falloff follows "
+        "1 / (1 + a r^2)^2, parametrised by the light lost in the corners."
+    )
+    _src = "cos^4 law; corner falloff of ~60 deg FOV lenses 10-40% (estimate of unit spread)"
+    params = (Param("corner_loss", "1", 0.12, 0.0, 0.6, 0.0, _src, "light lost at the corner"),)
+    differentiable = ("corner_loss",)
+
+    def _apply(
+        self,
+        x: torch.Tensor,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> torch.Tensor:
+        uu, vv = pixel_grid(x.shape[-2], x.shape[-1])
+        xm, ym = uu * ctx.width_mm / 2, vv * ctx.height_mm / 2
+        r2 = (xm**2 + ym**2) / ((ctx.width_mm / 2) ** 2 + (ctx.height_mm / 2) ** 2)
+        a = (1 - as_tensor(p["corner_loss"])).rsqrt() - 1
+        return x / (1 + a * r2) ** 2
+
+
+class CameraNoise(Effect):
+    name = "camera_noise"
+    stage = "camera"
+    stochastic = True
+    description = (
+        "Sensor noise is not a fixed Gaussian: photon shot noise grows with the signal "
+        "(variance proportional to it) on top of signal-independent read noise. "
+        "Poisson-Gaussian model, var = read^2 + shot_gain * signal (in 0-255 units), drawn "
+        "with the reparameterisation trick so it stays differentiable in its parameters."
+    )
+    _read = (
+        "../shared/real/digit_background_240x320.jpg: high-pass residual std 1.0-1.5 DN "
+        "(a lower bound after JPEG)"
+    )
+    _shot = "estimate: ~5k e- full well over 8 bits -> ~20 e-/DN -> 0.05 DN per DN"
+    params = (
+        Param("read_noise", "DN", 1.5, 0.0, 20.0, 0.0, _read, "signal-independent std"),
+        Param("shot_gain", "DN", 0.06, 0.0, 1.0, 0.0, _shot, "variance per unit of signal"),
+    )
+    differentiable = ("read_noise", "shot_gain")
+
+    def _apply(
+        self,
+        x: torch.Tensor,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> torch.Tensor:
+        if not ctx.stochastic:
+            return x
+        var = as_tensor(p["read_noise"]) ** 2 + as_tensor(p["shot_gain"]) * x.clamp(min=0.0)
+        return x + torch.sqrt(var + 1e-12) * randn(tuple(x.shape), generator)
+
+
+class GammaWhiteBalance(Effect):
+    name = "gamma_white_balance"
+    stage = "camera"
+    description = (
+        "The camera's image processor is not linear and not neutral: auto white balance "
+        "scales red and blue against green, and a tone curve (gamma) compresses highlights. "
+        "The simulator adds its shading linearly onto the background, so the same contact "
+        "changes the real image by different amounts on bright and dark parts of the field."
+    )
+    _src = "estimate: UVC auto white balance drift ~5%; ISP tone curves deviate ~10% in gamma"
+    params = (
+        Param("gamma", "1", 1.1, 0.5, 2.0, 1.0, _src, "tone-curve exponent (out = in^(1/g))"),
+        Param("wb_r", "1", 1.04, 0.7, 1.3, 1.0, _src, "red white-balance gain"),
+        Param("wb_b", "1", 0.95, 0.7, 1.3, 1.0, _src, "blue white-balance gain"),
+    )
+    differentiable = ("gamma", "wb_r", "wb_b")
+
+    def _apply(
+        self,
+        x: torch.Tensor,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> torch.Tensor:
+        one = torch.ones(())
+        wb = torch.stack([as_tensor(p["wb_r"]), one, as_tensor(p["wb_b"])]).view(1, 3, 1, 1)
+        y = (x * wb / 255.0).clamp(1e-4, 1.0)
+        return 255.0 * y ** (1.0 / as_tensor(p["gamma"]))
+
+
+# --------------------------------------------------------------------------- JPEG
+# ITU T.81 Annex K tables (luminance, chrominance), scaled by quality as libjpeg does.
+_Q_LUMA = (
+    (16, 11, 10, 16, 24, 40, 51, 61), (12, 12, 14, 19, 26, 58, 60, 55),
+    (14, 13, 16, 24, 40, 57, 69, 56), (14, 17, 22, 29, 51, 87, 80, 62),
+    (18, 22, 37, 56, 68, 109, 103, 77), (24, 35, 55, 64, 81, 104, 113, 92),
+    (49, 64, 78, 87, 103, 121, 120, 101), (72, 92, 95, 98, 112, 100, 103, 99),
+)  # fmt: skip
+
+
+def _chroma_table() -> torch.Tensor:
+    q = torch.full((8, 8), 99.0)
+    q[:4, :4] = torch.tensor(
+        ((17, 18, 24, 47), (18, 21, 26, 66), (24, 26, 56, 99), (47, 66, 99, 99)),
+        dtype=torch.float32,
+    )
+    return q
+
+
+def quant_tables(quality: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """libjpeg's quality scaling of the Annex K tables (baseline, clamped to 1..255)."""
+    q = min(max(int(round(quality)), 1), 100)
+    scale = 5000 / q if q < 50 else 200 - 2 * q
+    tabs = []
+    for base in (torch.tensor(_Q_LUMA, dtype=torch.float32), _chroma_table()):
+        tabs.append(torch.floor((base * scale + 50) / 100).clamp(1, 255))
+    return tabs[0], tabs[1]
+
+
+@lru_cache(maxsize=1)
+def _dct_matrix() -> torch.Tensor:
+    k = torch.arange(8, dtype=torch.float32)
+    d = torch.cos(math.pi * (2 * k[None, :] + 1) * k[:, None] / 16) * math.sqrt(2 / 8)
+    d[0] /= math.sqrt(2)
+    return d
+
+
+@lru_cache(maxsize=1)
+def _dct2_matrix() -> torch.Tensor:
+    d = _dct_matrix()
+    return torch.kron(d, d)
+
+
+def _round_ste(x: torch.Tensor) -> torch.Tensor:
+    return x + (torch.round(x) - x).detach()
+
+
+def _block_quantise(plane: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
+    """DCT-quantise-IDCT of (N, H, W) planes in 8 x 8 blocks (H, W multiples of 8)."""
+    n, h, w = plane.shape
+    d2 = _dct2_matrix()  # (64, 64): 2-D DCT of a flattened 8 x 8 block as one GEMM
+    b = plane.reshape(n, h // 8, 8, w // 8, 8).permute(0, 1, 3, 2, 4).reshape(-1, 64)
+    table = table.reshape(64)
+    coef = _round_ste((b @ d2.T) / table) * table
+    b = (coef @ d2).reshape(n, h // 8, w // 8, 8, 8)
+    return b.permute(0, 1, 3, 2, 4).reshape(n, h, w)
+
+
+def jpeg_approx(x: torch.Tensor, quality: float, native_hw: tuple[int, int]) -> torch.Tensor:
+    """Differentiable JPEG (baseline, 4:2:0) of (N, 3, S, S) 0..255 at the sensor's frame size.
+
+    The image is resized to the native frame, compressed like libjpeg (JFIF YCbCr, Annex K
+    tables, 2x2 chroma subsampling, rounding with a straight-through gradient) and resized
+    back with area averaging. Not bit-exact libjpeg (no integer DCT, bilinear chroma).
+    """
+    n, _, s_h, s_w = x.shape
+    hh, ww = native_hw
+    # colour transforms and resizes are linear, so convert at the model size and resize
+    # each plane straight to its coded size (luma full, chroma half): same result, cheaper
+    r, g, b = x[:, 0], x[:, 1], x[:, 2]
+    lum = 0.299 * r + 0.587 * g + 0.114 * b - 128
+    cb = -0.168736 * r - 0.331264 * g + 0.5 * b
+    cr = 0.5 * r - 0.418688 * g - 0.081312 * b
+    q_l, q_c = quant_tables(quality)
+    lum = F.interpolate(lum[:, None], size=(hh, ww), mode="bilinear", align_corners=False)
+    chroma = F.interpolate(
+        torch.stack([cb, cr], 1), size=(hh // 2, ww // 2), mode="bilinear", align_corners=False
+    )
+    lum = _block_quantise(lum[:, 0], q_l)[:, None]
+    chroma = _block_quantise(chroma.reshape(n * 2, hh // 2, ww // 2), q_c)
+    lum = F.adaptive_avg_pool2d(lum, (s_h, s_w))[:, 0] + 128
+    chroma = F.adaptive_avg_pool2d(chroma.reshape(n, 2, hh // 2, ww // 2), (s_h, s_w))
+    cb, cr = chroma[:, 0], chroma[:, 1]
+    rgb = torch.stack([lum + 1.402 * cr, lum - 0.344136 * cb - 0.714136 * cr, lum + 1.772 * cb], 1)
+    return rgb.clamp(0.0, 255.0)
+
+
+class StreamCompression(Effect):
+    name = "jpeg"
+    stage = "camera"
+    description = (
+        "A DIGIT streams MJPEG over USB: every frame is JPEG-compressed at the sensor's "
+        "320 x 240 before anyone resizes it, which quantises fine detail in 8 x 8 blocks and "
+        "halves chroma resolution. Implemented as a differentiable DCT-quantisation "
+        "approximation of baseline libjpeg (not a call to a real encoder), at the native "
+        "240 x 320 portrait frame, then resized back."
+    )
+    _src = "estimate: UVC MJPEG streams of small USB cameras run at quality ~80-90"
+    params = (Param("quality", "1", 85.0, 10.0, 100.0, 100.0, _src, "JPEG quality (100 = off)"),)
+    differentiable = ()
+    native_hw = (320, 240)
+    chunk = 64
+
+    def _apply(
+        self,
+        x: torch.Tensor,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> torch.Tensor:
+        q = scalar(p["quality"])
+        parts = [jpeg_approx(c, q, self.native_hw) for c in x.split(self.chunk)]
+        return torch.cat(parts) if parts else x

@@ -1,0 +1,354 @@
+"""Optics-stage effects: how the deformed gel turns the LEDs' light into colour.
+
+They act on an ``OpticalScene`` at the render resolution, in the order per-unit background
+-> optical response -> LED diffusivity -> shadows -> gel wear. The surrogate starts the
+scene from the simulator's shading (``sensor.optics.SimOptics``: three ideal point lights,
+Phong), so with every optics effect neutral it shades like the simulator.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from functools import lru_cache
+
+import torch
+import torch.nn.functional as F
+
+from tactile_bench.effects._optics_fit import (
+    LED_AZIMUTH_DEG,
+    N_HARM,
+    N_MAG,
+    RESPONSE_WEIGHTS,
+)
+from tactile_bench.effects.base import (
+    Effect,
+    EffectContext,
+    OpticalScene,
+    Param,
+    ParamValue,
+    as_tensor,
+    pixel_grid,
+    scalar,
+    surface_gradient,
+)
+
+# Depth (mm) over which a contact's flat-slope colour offset fades in.
+CONTACT_OFFSET_MM = 0.05
+
+
+def new_scene(
+    height: torch.Tensor, background: torch.Tensor, delta: torch.Tensor | None = None
+) -> OpticalScene:
+    """A scene over ``background`` (3|N, 3, H, W) under unit gain; no colour change by default."""
+    n, _, h, w = height.shape
+    return OpticalScene(
+        height=height,
+        background=background if background.dim() == 4 else background[None],
+        delta=delta if delta is not None else torch.zeros(n, 3, h, w),
+        gain=torch.ones(1, 3, 1, 1),
+    )
+
+
+_WEIGHTS = torch.tensor(RESPONSE_WEIGHTS, dtype=torch.float32)  # (F, 3, 6)
+
+
+def _features(gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
+    """(*, F) features of the compact model: contact offset, t^j x direction harmonics."""
+    r = torch.sqrt(gx**2 + gy**2 + 1e-12)
+    t = torch.atan(r) * (2 / math.pi)
+    c1, s1 = gx / r, gy / r
+    harms = [torch.ones_like(t)]
+    ck, sk = c1, s1
+    for _ in range(N_HARM):
+        harms += [ck, sk]
+        ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
+    feats = [contact]
+    tj = t
+    for _ in range(N_MAG):
+        feats += [tj * hk for hk in harms]
+        tj = tj * t
+    return torch.stack(feats, -1)
+
+
+def _position_basis(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    return torch.stack([torch.ones_like(u), u, v, u**2, v**2, u * v], -1)
+
+
+def fitted_response(
+    gx: torch.Tensor,
+    gy: torch.Tensor,
+    u: torch.Tensor,
+    v: torch.Tensor,
+    contact: torch.Tensor,
+) -> torch.Tensor:
+    """Real DIGIT colour change (3, *shape) for slope (gx, gy) mm/mm at position (u, v).
+
+    The compact model fitted to Taxim's polycalib (``_optics_fit``): harmonics of the slope
+    direction times powers of the slope angle, each with a quadratic position field.
+    ``contact`` in [0, 1] scales the flat-contact offset term. Inputs broadcast together.
+    """
+    gx, gy, u, v, contact = torch.broadcast_tensors(gx, gy, u, v, contact)
+    f = _features(gx, gy, contact)
+    pos = _position_basis(u, v)
+    return torch.einsum("...f,fcq,...q->c...", f, _WEIGHTS.to(f), pos)
+
+
+@lru_cache(maxsize=8)
+def _response_fields(h: int, w: int) -> torch.Tensor:
+    """(F, 3, H, W): each feature's per-channel position field on an H x W image."""
+    uu, vv = pixel_grid(h, w)
+    return torch.einsum("fcq,hwq->fchw", _WEIGHTS, _position_basis(uu, vv)).contiguous()
+
+
+def fitted_response_image(
+    gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor
+) -> torch.Tensor:
+    """Real DIGIT colour change (N, 3, H, W) for slope maps (N, H, W) over the full view."""
+    fields = _response_fields(gx.shape[-2], gx.shape[-1])
+    r = torch.sqrt(gx**2 + gy**2 + 1e-12)
+    t = torch.atan(r) * (2 / math.pi)
+    c1, s1 = gx / r, gy / r
+    harms = [None]  # None stands for the constant harmonic (skips a multiply by ones)
+    ck, sk = c1, s1
+    for _ in range(N_HARM):
+        harms += [ck, sk]
+        ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
+    out = contact[:, None] * fields[0]
+    k, tj = 1, t
+    for _ in range(N_MAG):
+        for hk in harms:
+            f = tj if hk is None else tj * hk
+            out = out + f[:, None] * fields[k]
+            k += 1
+        tj = tj * t
+    return out
+
+
+class OpticalResponse(Effect):
+    name = "optical_response"
+    stage = "optics"
+    description = (
+        "A real DIGIT is not three ideal point lights on a Lambertian surface. Light enters "
+        "through the gel's edge, scatters in the elastomer and reflects off a semi-specular "
+        "coating, so the colour change for a given slope depends on where the pixel is "
+        "(distance and angle to each LED), saturates and even reverses at steep slopes, and "
+        "leaks between channels. This effect replaces the simulator's shading by a compact "
+        "model fitted to a real DIGIT's example-based calibration (Taxim polycalib); ``blend`` "
+        "interpolates between the two."
+    )
+    _src = "../shared/real/digit_polycalib.npz (Taxim calibs/digit/polycalib.npz), fitted"
+    params = (Param("blend", "1", 1.0, 0.0, 1.0, 0.0, _src, "0 = simulator shading, 1 = real"),)
+    differentiable = ("blend",)
+
+    def _apply(
+        self,
+        x: OpticalScene,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> OpticalScene:
+        height = x.height
+        gx, gy = surface_gradient(height, ctx)
+        contact = (height / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
+        real = fitted_response_image(gx[:, 0], gy[:, 0], contact[:, 0])
+        blend = as_tensor(p["blend"])
+        return x.replace(delta=(1 - blend) * x.delta + blend * real)
+
+
+class LedDiffusivity(Effect):
+    name = "led_diffusivity"
+    stage = "optics"
+    description = (
+        "Every manufactured DIGIT lights its gel differently: its LEDs come from different "
+        "intensity bins, sit slightly differently behind a diffusing edge, and their spectra "
+        "overlap the camera's colour filters. Per-LED intensity scales that channel's "
+        "background and contact response; diffusion (light arriving from all directions) "
+        "flattens the slope contrast; crosstalk mixes each channel's response into the others."
+    )
+    _bin = "LED luminous-intensity binning, +-15% per bin (e.g. Kingbright APTF1616 RGB datasheet)"
+    _dif = "estimate: DIGIT LEDs shine through a diffusing edge (Lambeta et al. 2020, RA-L)"
+    _xt = "Bayer CFA spectral overlap of small CMOS sensors, ~5-10% (OV7670 datasheet fig.)"
+    params = (
+        Param("gain_r", "1", 1.0, 0.5, 1.5, 1.0, _bin, "red LED intensity, relative"),
+        Param("gain_g", "1", 0.94, 0.5, 1.5, 1.0, _bin, "green LED intensity, relative"),
+        Param("gain_b", "1", 1.06, 0.5, 1.5, 1.0, _bin, "blue LED intensity, relative"),
+        Param("diffusion", "1", 0.1, 0.0, 0.9, 0.0, _dif, "diffuse fraction of LED light"),
+        Param("crosstalk", "1", 0.06, 0.0, 0.3, 0.0, _xt, "response leaking to other channels"),
+    )
+    differentiable = tuple(q.name for q in params)
+
+    def _apply(
+        self,
+        x: OpticalScene,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> OpticalScene:
+        g = torch.stack([as_tensor(p[k]) for k in ("gain_r", "gain_g", "gain_b")]).view(1, 3, 1, 1)
+        xt = as_tensor(p["crosstalk"])
+        mix = (1 - xt) * torch.eye(3) + xt / 2 * (torch.ones(3, 3) - torch.eye(3))
+        delta = g * (1 - as_tensor(p["diffusion"])) * x.delta
+        delta = torch.einsum("ij,njhw->nihw", mix, delta)
+        return x.replace(background=x.background * g, delta=delta)
+
+
+class Shadows(Effect):
+    name = "shadows"
+    stage = "optics"
+    description = (
+        "The LEDs light the gel from low on its side, so a steep bump of the gel surface "
+        "occludes each LED for the surface just beyond it: a dark crescent on the side away "
+        "from that LED, in that LED's colour. A point is shadowed when the surface rises "
+        "above its line of sight to the LED; the depth of the shadow is the fraction of the "
+        "channel's light that comes straight from its LED."
+    )
+    _el = "estimate: LEDs at the gel edge, ~4 mm high next to an 18 mm gel (DIGIT, Lambeta 2020)"
+    _st = "Taxim shadow table (Si & Yuan 2022): shadows reach ~50% of the lit intensity"
+    _rc = "covers a 1.1 mm braille dome at 20 deg (1.1 / tan 20 = 3 mm); LED azimuths from the fit"
+    params = (
+        Param("elevation_deg", "deg", 20.0, 5.0, 60.0, 20.0, _el, "LED elevation over the gel"),
+        Param("strength", "1", 0.5, 0.0, 1.0, 0.0, _st, "direct fraction of each LED's light"),
+        Param("softness_mm", "mm", 0.05, 0.005, 0.5, 0.05, _st, "penumbra height scale"),
+        Param("reach_mm", "mm", 3.0, 0.5, 6.0, 3.0, _rc, "longest shadow searched"),
+    )
+    differentiable = ("elevation_deg", "strength", "softness_mm")
+    steps = 10
+
+    def _apply(
+        self,
+        x: OpticalScene,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> OpticalScene:
+        z = x.height
+        tan_el = torch.tan(torch.deg2rad(as_tensor(p["elevation_deg"])))
+        reach = scalar(p["reach_mm"])
+        dx, dy = ctx.mm_per_px(z)
+        pad = math.ceil(reach / min(dx, dy)) + 1
+        zp = F.pad(z, (pad, pad, pad, pad), mode="replicate")
+        h, w = z.shape[-2:]
+        masks = []
+        for az in LED_AZIMUTH_DEG:
+            a = math.radians(az)
+            occ = torch.full_like(z, -1e3)
+            for k in range(1, self.steps + 1):
+                t = reach * k / self.steps
+                i, j = round(t * math.sin(a) / dy), round(t * math.cos(a) / dx)
+                ahead = zp[..., pad + i : pad + i + h, pad + j : pad + j + w]
+                run = math.hypot(i * dy, j * dx)  # the distance actually sampled
+                occ = torch.maximum(occ, ahead - z - run * tan_el)
+            masks.append((occ / as_tensor(p["softness_mm"])).clamp(0.0, 1.0))
+        shadow = torch.cat(masks, 1)  # (N, 3, H, W)
+        return x.replace(gain=x.gain * (1 - as_tensor(p["strength"]) * shadow))
+
+
+class UnitBackground(Effect):
+    name = "unit_background"
+    stage = "optics"
+    description = (
+        "Each unit's no-contact frame differs from the one the simulator composites onto: "
+        "the LED board and gel sit a little shifted and turned, and the coating's tint "
+        "varies. The field is moved and rotated in the gel plane and tinted per channel; the "
+        "contact response is untouched (that is led_diffusivity's job)."
+    )
+    _src = "estimate: assembly tolerance ~0.5 mm / few deg and coating tint spread between units"
+    params = (
+        Param("shift_x_mm", "mm", 0.4, -3.0, 3.0, 0.0, _src, "field shift along x"),
+        Param("shift_y_mm", "mm", -0.3, -3.0, 3.0, 0.0, _src, "field shift along y"),
+        Param("rotation_deg", "deg", 2.0, -20.0, 20.0, 0.0, _src, "field rotation"),
+        Param("tint_r", "1", 1.03, 0.7, 1.3, 1.0, _src, "red tint of the field"),
+        Param("tint_g", "1", 0.98, 0.7, 1.3, 1.0, _src, "green tint of the field"),
+        Param("tint_b", "1", 1.02, 0.7, 1.3, 1.0, _src, "blue tint of the field"),
+    )
+    differentiable = tuple(q.name for q in params)
+
+    def _apply(
+        self,
+        x: OpticalScene,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> OpticalScene:
+        bg = x.background
+        n, _, h, w = bg.shape
+        uu, vv = pixel_grid(h, w)
+        xm, ym = uu * ctx.width_mm / 2, vv * ctx.height_mm / 2
+        a = torch.deg2rad(as_tensor(p["rotation_deg"]))
+        # sample the field where this unit's pixel came from: inverse rotate, then unshift
+        xs = torch.cos(a) * xm + torch.sin(a) * ym - as_tensor(p["shift_x_mm"])
+        ys = -torch.sin(a) * xm + torch.cos(a) * ym - as_tensor(p["shift_y_mm"])
+        grid = torch.stack([xs / (ctx.width_mm / 2), ys / (ctx.height_mm / 2)], -1)
+        warped = F.grid_sample(
+            bg,
+            grid.expand(n, h, w, 2),
+            mode="bilinear",
+            padding_mode="border",
+            align_corners=False,
+        )
+        tint = torch.stack([as_tensor(p[k]) for k in ("tint_r", "tint_g", "tint_b")])
+        return x.replace(background=warped * tint.view(1, 3, 1, 1))
+
+
+class GelWear(Effect):
+    name = "gel_wear"
+    stage = "optics"
+    description = (
+        "A used gel carries dust specks and scratches in its coating that block light, and "
+        "its centre, where most contacts land, has a thinner reflective coating that responds "
+        "less. These belong to the unit, not the frame: they sit at the same place in every "
+        "image and in the no-contact frame (drawn from ``unit_seed``)."
+    )
+    _src = "estimate: a lab-used gel after weeks of contacts (few specks/cm2, 1-3 scratches)"
+    params = (
+        Param("dust_per_cm2", "1/cm2", 3.0, 0.0, 50.0, 0.0, _src, "dust speck density"),
+        Param("dust_size_mm", "mm", 0.08, 0.02, 0.5, 0.08, _src, "speck radius (sigma)"),
+        Param("dust_opacity", "1", 0.4, 0.0, 1.0, 0.0, _src, "light blocked at a speck centre"),
+        Param("scratches", "1", 2.0, 0.0, 10.0, 0.0, _src, "number of scratches", integer=True),
+        Param("scratch_opacity", "1", 0.15, 0.0, 1.0, 0.0, _src, "light blocked on a scratch"),
+        Param("coating_wear", "1", 0.1, 0.0, 0.8, 0.0, _src, "response lost at the worn centre"),
+        Param("unit_seed", "1", 1.0, 0.0, 1e6, 1.0, "per-unit draw", "which unit", integer=True),
+    )
+    differentiable = ("dust_opacity", "scratch_opacity", "coating_wear")
+
+    def _apply(
+        self,
+        x: OpticalScene,
+        p: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+    ) -> OpticalScene:
+        h, w = x.delta.shape[-2:]
+        g = torch.Generator().manual_seed(int(scalar(p["unit_seed"])))
+        uu, vv = pixel_grid(h, w)
+        xm, ym = uu * ctx.width_mm / 2, vv * ctx.height_mm / 2
+        half = torch.tensor([ctx.width_mm / 2, ctx.height_mm / 2])
+        area_cm2 = ctx.width_mm * ctx.height_mm / 100.0
+        n_dust = round(scalar(p["dust_per_cm2"]) * area_cm2)
+        log_t = torch.zeros(h, w)
+        if n_dust:
+            c = (torch.rand(n_dust, 2, generator=g) * 2 - 1) * half
+            s = scalar(p["dust_size_mm"]) * (0.5 + torch.rand(n_dust, generator=g))
+            r2 = (xm - c[:, :1, None]) ** 2 + (ym - c[:, 1:, None]) ** 2
+            spot = torch.exp(-0.5 * r2 / s[:, None, None] ** 2)
+            opacity = as_tensor(p["dust_opacity"]).clamp(max=0.999)
+            log_t = log_t + torch.log1p(-opacity * spot).sum(0)
+        n_scr = int(round(scalar(p["scratches"])))
+        if n_scr:
+            a = (torch.rand(n_scr, 2, generator=g) * 2 - 1) * half
+            ang = torch.rand(n_scr, generator=g) * math.pi
+            length = 2.0 + 6.0 * torch.rand(n_scr, generator=g)
+            d = torch.stack([torch.cos(ang), torch.sin(ang)], 1)
+            rel_x, rel_y = xm - a[:, :1, None], ym - a[:, 1:, None]
+            along = (rel_x * d[:, :1, None] + rel_y * d[:, 1:, None]).clamp(0.0, None)
+            along = torch.minimum(along, length[:, None, None])
+            dist2 = (rel_x - along * d[:, :1, None]) ** 2 + (rel_y - along * d[:, 1:, None]) ** 2
+            line = torch.exp(-0.5 * dist2 / 0.03**2)
+            log_t = log_t + torch.log1p(
+                -as_tensor(p["scratch_opacity"]).clamp(max=0.999) * line
+            ).sum(0)
+        centre = (torch.rand(2, generator=g) - 0.5) * 2.0  # worn patch within 1 mm of centre
+        worn = torch.exp(-0.5 * ((xm - centre[0]) ** 2 + (ym - centre[1]) ** 2) / 4.0**2)
+        response = 1 - as_tensor(p["coating_wear"]) * worn
+        return x.replace(gain=x.gain * torch.exp(log_t), delta=x.delta * response)

@@ -1,0 +1,296 @@
+"""The surrogate DIGIT: the "real" sensor of this project, built from named physical effects.
+
+No real sensor is at hand, so real data come from this model. It starts from the same contact
+geometry as the simulator and adds, stage by stage, the effects a real DIGIT shows and the
+simple simulator lacks (``tactile_bench.effects``). The order of the stages is part of the
+model and follows image formation:
+
+1. **pose** (on ``Poses``): the real contact differs from the commanded one;
+2. ``render_height``: rigid signed height of the object at ``size * oversample``;
+3. **geometry** (on the signed height, at that resolution): object texture, elastic spread
+   of the gel, slip;
+4. the gel surface is the positive part (displacement towards the camera, mm),
+   area-averaged to ``size`` (the paper resizes 320 x 240 frames to 64 x 64; the simulator
+   shades at ``size`` too, so the two differ in physics, not in resolution);
+5. **optics** (on an ``OpticalScene`` at ``size``): the scene starts as the
+   simulator's noise-free rendering (``SimOptics``: three ideal lights, Phong, TACTO's
+   0.5 scale and low-pass) over this unit's no-contact field; the
+   effects swap in the real response fitted from Taxim's calibration, the unit's LEDs,
+   shadows, wear; the sensor saturates at 0..255;
+6. **camera** (on the image): defocus, vignetting, Poisson-Gaussian noise, gamma and white
+   balance, JPEG stream compression; clamp to 0..255.
+
+With every effect switched off the surrogate is a noise-free TACTO-like simulator over the
+measured background, so ``without(name)`` measures how much of the sim-to-real gap an
+effect carries. Its parameters live only here and in ``profiles/``: models never see them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+import yaml
+
+from tactile_bench.effects import EFFECT_ORDER, EFFECTS, get_effect
+from tactile_bench.effects.base import EffectContext, ParamValue
+from tactile_bench.effects.optics import new_scene
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.geometry.contacts import Poses
+from tactile_bench.sensor.background import UNITS, digit_background
+from tactile_bench.sensor.depth import GelSpec, render_height
+from tactile_bench.sensor.heightfield import HeightFieldBank
+from tactile_bench.sensor.optics import SimOptics
+
+PROFILE_DIR = Path(__file__).with_name("profiles")
+NO_CONTACT_MM = 1.0  # object distance from the gel for the no-contact frame
+_PROFILE_KEYS = {"name", "unit", "description", "effects"}
+
+
+def available_profiles() -> list[str]:
+    """Names of the built-in profiles (``sensor/profiles/*.yaml``)."""
+    return sorted(p.stem for p in PROFILE_DIR.glob("*.yaml"))
+
+
+def _check_effects(
+    effects: Mapping[str, Mapping[str, Any] | None], where: str
+) -> dict[str, dict[str, ParamValue]]:
+    out: dict[str, dict[str, ParamValue]] = {}
+    if not isinstance(effects, Mapping):
+        raise TactileBenchError(f"{where}: effects: must be a mapping of effect name to params")
+    for name, params in effects.items():
+        if name not in EFFECTS:
+            raise TactileBenchError(
+                f"{where}: effects.{name}: unknown effect; known: {', '.join(EFFECT_ORDER)}"
+            )
+        params = {} if params is None else params
+        if not isinstance(params, Mapping):
+            raise TactileBenchError(f"{where}: effects.{name}: must be a mapping of params")
+        effect = EFFECTS[name]
+        for key, value in params.items():
+            try:
+                effect.validate({key: value})
+            except TactileBenchError as err:
+                raise TactileBenchError(f"{where}: effects.{name}.{key}: {err}") from None
+        out[name] = dict(params)
+    return out
+
+
+def _resize(x: torch.Tensor, size: int) -> torch.Tensor:
+    """Area-average down (or bilinear up) to size x size, like a camera pixel integrates."""
+    if tuple(x.shape[-2:]) == (size, size):
+        return x
+    if x.shape[-1] >= size and x.shape[-2] >= size:
+        return F.adaptive_avg_pool2d(x, (size, size))
+    return F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False)
+
+
+class SurrogateDigit:
+    """A surrogate DIGIT unit: a background field and an ordered set of effects with params."""
+
+    def __init__(
+        self,
+        effects: Mapping[str, Mapping[str, ParamValue] | None] | None = None,
+        unit: str = "digit",
+        name: str = "custom",
+        description: str = "",
+        source: str = "<code>",
+    ) -> None:
+        if unit not in UNITS:
+            raise TactileBenchError(f"{source}: unit: unknown {unit!r}; known: {sorted(UNITS)}")
+        self.unit = unit
+        self.name = name
+        self.description = description
+        self.source = source
+        self._effects = _check_effects(effects or {}, source)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_profile(cls, name_or_path: str | Path = "digit") -> SurrogateDigit:
+        """Load ``sensor/profiles/<name>.yaml`` or a YAML file path."""
+        path = Path(name_or_path)
+        if not path.suffix:
+            path = PROFILE_DIR / f"{name_or_path}.yaml"
+        if not path.exists():
+            raise TactileBenchError(
+                f"{path}: no such surrogate profile; built-in: {available_profiles()}"
+            )
+        try:
+            data = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as err:
+            raise TactileBenchError(f"{path}: not valid YAML: {err}".splitlines()[0]) from None
+        if not isinstance(data, Mapping):
+            raise TactileBenchError(f"{path}: must be a mapping with keys {sorted(_PROFILE_KEYS)}")
+        extra = set(data) - _PROFILE_KEYS
+        if extra:
+            raise TactileBenchError(f"{path}: {sorted(extra)[0]}: unknown key")
+        return cls(
+            effects=data.get("effects") or {},
+            unit=str(data.get("unit", "digit")),
+            name=str(data.get("name", path.stem)),
+            description=str(data.get("description", "")),
+            source=str(path),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain, YAML-able description (for recipe hashes and reports)."""
+        effects = {
+            n: {
+                k: float(v) if not isinstance(v, torch.Tensor) else v.tolist() for k, v in p.items()
+            }
+            for n, p in self._effects.items()
+        }
+        return {"name": self.name, "unit": self.unit, "effects": effects}
+
+    def __repr__(self) -> str:
+        on = self.effects_enabled
+        return f"SurrogateDigit(name={self.name!r}, unit={self.unit!r}, effects={on})"
+
+    # ------------------------------------------------------------------ effect switches
+    @property
+    def effects_enabled(self) -> list[str]:
+        """Enabled effects in application order."""
+        return [n for n in EFFECT_ORDER if n in self._effects]
+
+    def params(self, name: str) -> dict[str, ParamValue]:
+        """Full parameter set of an enabled effect (profile values over defaults)."""
+        if name not in self._effects:
+            raise TactileBenchError(f"surrogate {self.name!r}: effect {name!r} is not enabled")
+        return get_effect(name).validate(self._effects[name])
+
+    def _copy(self, effects: Mapping[str, Mapping[str, ParamValue]], suffix: str) -> SurrogateDigit:
+        return SurrogateDigit(
+            effects, self.unit, f"{self.name}{suffix}", self.description, self.source
+        )
+
+    def without(self, *names: str) -> SurrogateDigit:
+        """A copy with the named effects switched off (unknown names are an error)."""
+        for n in names:
+            get_effect(n)
+        kept = {n: p for n, p in self._effects.items() if n not in names}
+        return self._copy(kept, "".join(f"-{n}" for n in names))
+
+    def only(self, *names: str) -> SurrogateDigit:
+        """A copy with only the named effects on (at this unit's params or defaults)."""
+        for n in names:
+            get_effect(n)
+        return self._copy({n: self._effects.get(n, {}) for n in names}, "-only")
+
+    def with_params(self, name: str, **values: ParamValue) -> SurrogateDigit:
+        """A copy with one effect's params updated (the effect is switched on if it was off)."""
+        get_effect(name)
+        effects = dict(self._effects)
+        effects[name] = {**effects.get(name, {}), **values}
+        return self._copy(effects, "")
+
+    # ------------------------------------------------------------------ rendering
+    def _apply_stage(
+        self, stage: str, x: Any, generator: torch.Generator | None, ctx: EffectContext
+    ) -> Any:
+        for n in self.effects_enabled:
+            effect = EFFECTS[n]
+            if effect.stage == stage:
+                x = effect.apply(x, self._effects[n], generator, ctx)
+        return x
+
+    def render_surface(
+        self,
+        height: torch.Tensor,
+        gel: GelSpec | None = None,
+        generator: torch.Generator | None = None,
+        yaw_deg: torch.Tensor | None = None,
+        stochastic: bool = True,
+    ) -> torch.Tensor:
+        """Image (N, 3, S, S) 0..255 from a signed height or depth map (N, 1, H, W), mm.
+
+        Entry point for callers without a braille bank (pretraining objects, a depth image
+        from elsewhere): stages 3-6 of the model. Any H, W works; ``gel.size`` sets S.
+        """
+        gel = gel or GelSpec()
+        if height.dim() != 4 or height.shape[1] != 1:
+            raise TactileBenchError(
+                f"render_surface: height must be (N, 1, H, W), got {tuple(height.shape)}"
+            )
+        ctx = EffectContext(gel.width_mm, gel.height_mm, stochastic, yaw_deg)
+        h = self._apply_stage("geometry", height.float(), generator, ctx)
+        surface = _resize(h.clamp(min=0.0), gel.size)
+        bg = digit_background(gel.size, self.unit)
+        scene = new_scene(surface, bg, self._sim_delta(surface, bg, gel))
+        scene = self._apply_stage("optics", scene, generator, ctx)
+        image = scene.composite()
+        if image.shape[0] != surface.shape[0]:
+            image = image.expand(surface.shape[0], -1, -1, -1)
+        image = self._apply_stage("camera", image, generator, ctx)
+        return image.clamp(0.0, 255.0)
+
+    render_depth_image = render_surface
+
+    @staticmethod
+    def _sim_delta(surface: torch.Tensor, background: torch.Tensor, gel: GelSpec) -> torch.Tensor:
+        """The simulator's noise-free colour change over ``background``: the base scene.
+
+        With every effect off the surrogate therefore renders exactly what ``SimOptics``
+        renders without noise on this unit's background.
+        """
+        res = GelSpec(gel.width_mm, gel.height_mm, surface.shape[-1], 1)
+        return SimOptics().render(surface, background, None, res) - background
+
+    def background(self, size: int | GelSpec = 64) -> torch.Tensor:
+        """This unit's no-contact frame (3, S, S), 0..255: no per-frame noise or slip.
+
+        Rendered through the same stages with nothing within ``NO_CONTACT_MM`` of the gel,
+        so per-unit effects (background, LEDs, wear, lens, tone curve, JPEG) show in it.
+        """
+        gel = size if isinstance(size, GelSpec) else GelSpec(size=int(size))
+        n = gel.size * gel.oversample
+        flat = torch.full((1, 1, n, n), -NO_CONTACT_MM)
+        return self.render_surface(flat, gel, None, stochastic=False)[0]
+
+    def render(
+        self,
+        bank: HeightFieldBank,
+        poses: Poses,
+        gel: GelSpec | None = None,
+        generator: torch.Generator | None = None,
+        chunk: int = 128,
+    ) -> torch.Tensor:
+        """Real-looking images (N, 3, S, S), 0..255, of contacts ``poses`` on ``bank``.
+
+        Randomness (pose scatter, texture, slip, noise) comes only from ``generator``;
+        chunks are drawn in order, so a result depends on the generator state, not on
+        ``chunk`` for the noise-free effects.
+        """
+        gel = gel or GelSpec()
+        generator = generator if generator is not None else torch.Generator().manual_seed(0)
+        ctx = EffectContext(gel.width_mm, gel.height_mm, True)
+        parts = []
+        for k in range(0, len(poses), chunk):
+            sub = poses.index(slice(k, k + chunk))
+            sub = self._apply_stage("pose", sub, generator, ctx)
+            height = render_height(bank, sub, gel)
+            parts.append(self.render_surface(height, gel, generator, yaw_deg=sub.yaw_deg))
+        if not parts:
+            return torch.zeros(0, 3, gel.size, gel.size)
+        return torch.cat(parts)
+
+    def render_with_background(
+        self,
+        bank: HeightFieldBank,
+        poses: Poses,
+        gel: GelSpec | None = None,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(render(...), background(gel))``: images and this unit's no-contact frame."""
+        gel = gel or GelSpec()
+        return self.render(bank, poses, gel, generator), self.background(gel)
+
+
+def load_surrogate(
+    name_or_path: str | Path = "digit", without: Iterable[str] = ()
+) -> SurrogateDigit:
+    """``SurrogateDigit.from_profile(name_or_path).without(*without)``."""
+    s = SurrogateDigit.from_profile(name_or_path)
+    return s.without(*without) if without else s
