@@ -30,7 +30,9 @@ def _cmd_fit(ns: argparse.Namespace) -> int:
     print(f"\nrun directory: {recipe.run_dir}")
     for result in results:
         state = "cached" if result.cached else "ran"
-        print(f"  {result.name:<24} {state:<7} {result.wall_time_s:8.1f} s  {result.directory.name}")
+        print(
+            f"  {result.name:<24} {state:<7} {result.wall_time_s:8.1f} s  {result.directory.name}"
+        )
     table = recipe.run_dir / "results.md"
     if table.exists():
         print()
@@ -56,9 +58,13 @@ def _list_effects() -> None:
 
     print("effects (the surrogate DIGIT's physics; order: pose -> geometry -> optics -> camera):")
     for name, effect in EFFECTS.items():
-        print(f"  {name:<22} [{effect.stage}] {effect.summary()}")
-        for param in effect.params:
-            print(f"      {param.describe()}")
+        first_sentence = " ".join(effect.description.split()).split(". ")[0].rstrip(".")
+        print(f"  {name:<20} [{effect.stage}] {first_sentence}.")
+        for q in effect.params:
+            print(
+                f"      {q.name:<18} {q.default:g} {q.unit:<8} range [{q.low:g}, {q.high:g}], "
+                f"neutral {q.neutral:g}; source: {q.source}"
+            )
 
 
 def _list_recipes() -> None:
@@ -100,10 +106,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     fit = sub.add_parser("fit", help="run a recipe (cached stages; reruns skip finished work)")
     fit.add_argument("recipe", help="path to a recipe YAML, e.g. recipes/smoke.yaml")
-    fit.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                     help="override a recipe value: seed=1, trainer.max_epochs=2, STAGE.key=value")
-    fit.add_argument("--force", action="append", default=[], metavar="STAGE",
-                     help="redo this stage even if it finished before (repeatable)")
+    fit.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a recipe value: seed=1, trainer.max_epochs=2, STAGE.key=value",
+    )
+    fit.add_argument(
+        "--force",
+        action="append",
+        default=[],
+        metavar="STAGE",
+        help="redo this stage even if it finished before (repeatable)",
+    )
     fit.add_argument("--run-dir", help="where to write (default: runs/<recipe name>)")
     fit.add_argument("--no-progress", action="store_true", help="no progress bars")
     fit.set_defaults(func=_cmd_fit)

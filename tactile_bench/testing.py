@@ -76,5 +76,7 @@ class TranslatorContract:
         outputs = []
         for run in range(2):
             translator = self.fitted(tmp_path / f"run{run}")
-            outputs.append(translator.translate(depth, background, torch.Generator().manual_seed(5)))
+            outputs.append(
+                translator.translate(depth, background, torch.Generator().manual_seed(5))
+            )
         torch.testing.assert_close(outputs[0], outputs[1])

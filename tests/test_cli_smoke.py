@@ -11,7 +11,9 @@ import pytest
 from tactile_bench.cli import main
 
 
-def test_smoke_recipe_end_to_end(repo: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_smoke_recipe_end_to_end(
+    repo: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     run_dir = tmp_path / "smoke"
     args = ["fit", str(repo / "recipes" / "smoke.yaml"), "--run-dir", str(run_dir), "--no-progress"]
     assert main(args) == 0

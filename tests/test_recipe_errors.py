@@ -30,7 +30,10 @@ CASES = {
     "input not earlier": (GOOD.replace("data: braille", "data: later"), "inputs.data"),
     "missing input": (GOOD.replace("inputs: {data: braille}", "inputs: {}"), "inputs.data"),
     "not a character": (GOOD.replace("chars: AB", "chars: A!"), "chars"),
-    "unknown sensor": (GOOD.replace("n_test: 4}", "n_test: 4, real_sensor: nosuch}"), "real_sensor"),
+    "unknown sensor": (
+        GOOD.replace("n_test: 4}", "n_test: 4, real_sensor: nosuch}"),
+        "real_sensor",
+    ),
     "bad yaml": ("name: [t\nstages: -", "YAML"),
     "no stages": ("name: t\nstages: []\n", "stages"),
 }
@@ -62,7 +65,9 @@ def test_missing_recipe_file(tmp_path: Path, capsys: pytest.CaptureFixture[str])
 def test_set_override_is_validated(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "r.yaml"
     path.write_text(GOOD)
-    code = main(["fit", str(path), "--set", "braille.n_test=oops", "--run-dir", str(tmp_path / "x")])
+    code = main(
+        ["fit", str(path), "--set", "braille.n_test=oops", "--run-dir", str(tmp_path / "x")]
+    )
     assert code == 2 and "n_test" in capsys.readouterr().err
     code = main(["fit", str(path), "--set", "nosuchstage.a=1"])
     assert code == 2 and "nosuchstage" in capsys.readouterr().err

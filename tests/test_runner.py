@@ -29,7 +29,8 @@ def _produce(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
 @pytest.fixture
 def recipe_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     monkeypatch.setitem(
-        stage_registry.STAGES, "count",
+        stage_registry.STAGES,
+        "count",
         StageKind("count", "test stage", CountConfig, _produce, {"up": False}),
     )
     CALLS.clear()

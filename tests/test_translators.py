@@ -55,9 +55,11 @@ def _fake_entry_points(*pairs: tuple[str, str]):
 
 def test_duplicate_name_is_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(
-        registry, "entry_points",
-        _fake_entry_points(("sim", "tactile_bench.translators.sim:SimTranslator"),
-                           ("sim", "someone_else:Sim")),
+        registry,
+        "entry_points",
+        _fake_entry_points(
+            ("sim", "tactile_bench.translators.sim:SimTranslator"), ("sim", "someone_else:Sim")
+        ),
     )
     with pytest.raises(TactileBenchError, match="registered twice"):
         registry.discover()
@@ -65,10 +67,13 @@ def test_duplicate_name_is_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def test_broken_plugin_breaks_only_itself(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(
-        registry, "entry_points",
-        _fake_entry_points(("sim", "tactile_bench.translators.sim:SimTranslator"),
-                           ("broken", "no_such_module_xyz:Thing"),
-                           ("notone", "tactile_bench.errors:TactileBenchError")),
+        registry,
+        "entry_points",
+        _fake_entry_points(
+            ("sim", "tactile_bench.translators.sim:SimTranslator"),
+            ("broken", "no_such_module_xyz:Thing"),
+            ("notone", "tactile_bench.errors:TactileBenchError"),
+        ),
     )
     assert registry.translator_class("sim") is SimTranslator
     with pytest.raises(TactileBenchError, match="failed to import"):
@@ -83,9 +88,12 @@ def test_list_survives_a_broken_plugin(
     from tactile_bench.cli import main
 
     monkeypatch.setattr(
-        registry, "entry_points",
-        _fake_entry_points(("sim", "tactile_bench.translators.sim:SimTranslator"),
-                           ("broken", "no_such_module_xyz:Thing")),
+        registry,
+        "entry_points",
+        _fake_entry_points(
+            ("sim", "tactile_bench.translators.sim:SimTranslator"),
+            ("broken", "no_such_module_xyz:Thing"),
+        ),
     )
     assert main(["list", "translators"]) == 0
     out = capsys.readouterr().out

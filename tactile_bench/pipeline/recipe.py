@@ -106,9 +106,7 @@ def apply_overrides(doc: dict[str, Any], overrides: list[str], path: Path) -> di
         elif head in _RecipeDoc.model_fields:
             target, rest = doc, [head, *rest]
         else:
-            raise TactileBenchError(
-                f"{path}: --set {key}: no stage or recipe key named {head!r}"
-            )
+            raise TactileBenchError(f"{path}: --set {key}: no stage or recipe key named {head!r}")
         for part in rest[:-1]:
             node = target.setdefault(part, {})
             if not isinstance(node, dict):

@@ -51,7 +51,9 @@ def read_done(directory: Path) -> StageResult | None:
         for name, entry in manifest["outputs"].items():
             file = directory / entry["file"]
             if not file.exists() or file_sha256(file) != entry["sha256"]:
-                log.warning("cache entry %s: %s is missing or corrupted; rebuilding", directory, name)
+                log.warning(
+                    "cache entry %s: %s is missing or corrupted; rebuilding", directory, name
+                )
                 return None
         return StageResult(
             name=manifest["name"],
@@ -68,13 +70,16 @@ def read_done(directory: Path) -> StageResult | None:
         return None
 
 
-def _finish(stage: Stage, directory: Path, outputs: dict[str, str], metrics: dict[str, Any],
-            wall: float) -> StageResult:
+def _finish(
+    stage: Stage, directory: Path, outputs: dict[str, str], metrics: dict[str, Any], wall: float
+) -> StageResult:
     listed = {}
     for name, rel in outputs.items():
         file = directory / rel
         if not file.exists():
-            raise TactileBenchError(f"stage {stage.name!r} did not write its output {name!r} ({rel})")
+            raise TactileBenchError(
+                f"stage {stage.name!r} did not write its output {name!r} ({rel})"
+            )
         listed[name] = {"file": rel, "sha256": file_sha256(file)}
     manifest = {
         "name": stage.name,
@@ -86,8 +91,9 @@ def _finish(stage: Stage, directory: Path, outputs: dict[str, str], metrics: dic
         "version": tactile_bench.__version__,
     }
     atomic_write_json(directory / DONE, manifest)
-    return StageResult(stage.name, stage.kind.name, directory, outputs, metrics,
-                       json_sha256(listed), wall)
+    return StageResult(
+        stage.name, stage.kind.name, directory, outputs, metrics, json_sha256(listed), wall
+    )
 
 
 def _publish(result: StageResult, names: tuple[str, ...], run_dir: Path) -> None:
@@ -99,7 +105,9 @@ def _publish(result: StageResult, names: tuple[str, ...], run_dir: Path) -> None
             tmp.replace(run_dir / src.name)
 
 
-def run_recipe(recipe: Recipe, force: tuple[str, ...] = (), progress: bool = True) -> list[StageResult]:
+def run_recipe(
+    recipe: Recipe, force: tuple[str, ...] = (), progress: bool = True
+) -> list[StageResult]:
     """Run (or reuse) every stage; returns their results in order."""
     for name in force:
         recipe.stage(name)  # unknown names fail before any work
@@ -117,8 +125,16 @@ def run_recipe(recipe: Recipe, force: tuple[str, ...] = (), progress: bool = Tru
             (directory / DONE).unlink(missing_ok=True)
             directory.mkdir(parents=True, exist_ok=True)
             log.info("stage %s (%s): running in %s", stage.name, stage.kind.name, directory)
-            ctx = StageContext(stage.name, directory, stage.config, inputs, recipe.seed,
-                               dict(recipe.trainer), recipe.run_dir, progress)
+            ctx = StageContext(
+                stage.name,
+                directory,
+                stage.config,
+                inputs,
+                recipe.seed,
+                dict(recipe.trainer),
+                recipe.run_dir,
+                progress,
+            )
             start = time.perf_counter()
             outputs, metrics = stage.kind.run(ctx)
             result = _finish(stage, directory, outputs, metrics, time.perf_counter() - start)
@@ -132,8 +148,13 @@ def run_recipe(recipe: Recipe, force: tuple[str, ...] = (), progress: bool = Tru
             "name": recipe.name,
             "seed": recipe.seed,
             "stages": [
-                {"name": r.name, "kind": r.kind, "directory": r.directory.name,
-                 "wall_time_s": r.wall_time_s, "cached": r.cached}
+                {
+                    "name": r.name,
+                    "kind": r.kind,
+                    "directory": r.directory.name,
+                    "wall_time_s": r.wall_time_s,
+                    "cached": r.cached,
+                }
                 for r in results.values()
             ],
         },

@@ -36,7 +36,9 @@ class ColourMatchTranslator(Translator):
         sim = self.sim.translate_foreground(depth, generator).to(self.mix.weight)
         return self.mix(sim - 0.5) + 0.5
 
-    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> torch.Tensor:
+    def training_step(
+        self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int
+    ) -> torch.Tensor:
         depth, real = batch
         generator = torch.Generator().manual_seed(self.config.seed + batch_idx)
         loss = nn.functional.mse_loss(self.translate_foreground(depth, generator), real)

@@ -50,8 +50,16 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     bank = build_bank(chars, BrailleSpec())
     real = SurrogateDigit.from_profile(config.real_sensor)
     sets = build_braille_sets(
-        bank, gel, SimOptics(), sim_background(config.image_size), real, seed=ctx.seed,
-        chars=chars, n_finetune=config.n_finetune, n_test=config.n_test, progress=ctx.progress,
+        bank,
+        gel,
+        SimOptics(),
+        sim_background(config.image_size),
+        real,
+        seed=ctx.seed,
+        chars=chars,
+        n_finetune=config.n_finetune,
+        n_test=config.n_test,
+        progress=ctx.progress,
     )
     outputs = {}
     for name in SETS:
@@ -59,8 +67,11 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         outputs[name] = f"{name}.npz"
 
     test = sets["test"]
-    picks = [int(torch.nonzero(test.labels == i)[0]) for i in range(min(6, len(chars)))
-             if bool((test.labels == i).any())]
+    picks = [
+        int(torch.nonzero(test.labels == i)[0])
+        for i in range(min(6, len(chars)))
+        if bool((test.labels == i).any())
+    ]
     sample_grid_png(
         {"depth": test.depth[picks], "sim": test.sim[picks], "surrogate real": test.real[picks]},
         [chars[int(test.labels[i])] for i in picks],

@@ -39,7 +39,9 @@ class ClassifyConfig(StageConfig):
     classifier: ClassifierSettings = ClassifierSettings()
 
 
-def _stratified_split(labels: torch.Tensor, fraction: float, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+def _stratified_split(
+    labels: torch.Tensor, fraction: float, seed: int
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Train / held-out indices, the same fraction of every class."""
     gen = torch.Generator().manual_seed(seed)
     train, held = [], []
@@ -55,7 +57,9 @@ def _stratified_split(labels: torch.Tensor, fraction: float, seed: int) -> tuple
 def _training_foreground(ctx: StageContext) -> tuple[torch.Tensor, torch.Tensor]:
     config: ClassifyConfig = ctx.config
     if config.train_images == "translated":
-        arrays = load_npz(ctx.input("images").path("classifier"), ("images", "background", "labels"))
+        arrays = load_npz(
+            ctx.input("images").path("classifier"), ("images", "background", "labels")
+        )
         images = torch.from_numpy(arrays["images"]).float()
         background = torch.from_numpy(arrays["background"]).float()
         return image_to_foreground(images, background), torch.from_numpy(arrays["labels"])
@@ -82,20 +86,29 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         settings = ClassifierConfig(**config.classifier.model_dump(), seed=seed)
         seed_dir = ctx.directory / f"seed{seed}"
         model = train_classifier(
-            foreground[train_idx], labels[train_idx], settings, seed_dir,
-            loggers=make_loggers(seed_dir, f"{ctx.name}-seed{seed}"), trainer_kwargs=ctx.trainer,
+            foreground[train_idx],
+            labels[train_idx],
+            settings,
+            seed_dir,
+            loggers=make_loggers(seed_dir, f"{ctx.name}-seed{seed}"),
+            trainer_kwargs=ctx.trainer,
             num_classes=n_classes,
         )
         real = evaluate(model, test_fg, test.labels, num_classes=n_classes)
         heldout = (
             evaluate(model, foreground[held_idx], labels[held_idx], num_classes=n_classes)
-            if len(held_idx) else None
+            if len(held_idx)
+            else None
         )
         per_seed.append({"seed": seed, "test": real, "heldout": heldout})
 
     first = per_seed[0]["test"]
-    confusion_png(first["confusion"], classes, ctx.directory / "confusion.png",
-                  title=f"{config.row}: confusion on real test (seed {config.seeds[0]})")
+    confusion_png(
+        first["confusion"],
+        classes,
+        ctx.directory / "confusion.png",
+        title=f"{config.row}: confusion on real test (seed {config.seeds[0]})",
+    )
     per_class_bar_png(first["per_class_accuracy"], classes, ctx.directory / "per_class.png")
     summary = {
         "row": config.row,
@@ -103,13 +116,22 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         "seeds": config.seeds,
         "n_train": int(len(labels) - len(held_idx)),
         "n_test": int(len(test)),
-        **{m: _summary([s["test"][m] for s in per_seed]) for m in ("accuracy", "precision", "recall")},
+        **{
+            m: _summary([s["test"][m] for s in per_seed])
+            for m in ("accuracy", "precision", "recall")
+        },
         "heldout_accuracy": (
-            _summary([s["heldout"]["accuracy"] for s in per_seed]) if per_seed[0]["heldout"] else None
+            _summary([s["heldout"]["accuracy"] for s in per_seed])
+            if per_seed[0]["heldout"]
+            else None
         ),
     }
     atomic_write_json(ctx.directory / "metrics.json", {"summary": summary, "per_seed": per_seed})
-    outputs = {"metrics": "metrics.json", "confusion": "confusion.png", "per_class": "per_class.png"}
+    outputs = {
+        "metrics": "metrics.json",
+        "confusion": "confusion.png",
+        "per_class": "per_class.png",
+    }
     return outputs, summary
 
 

@@ -42,7 +42,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
 
 STAGE = StageKind(
     name="report",
-    description="collect classifier rows into results.json and results.md (with the paper's numbers)",
+    description="collect classifier rows into results.json and results.md, paper beside",
     config_model=ReportConfig,
     run=_run,
     input_slots={"rows": True},

@@ -18,7 +18,7 @@ from tactile_bench.translators import create_translator, translator_class
 
 
 class TranslateConfig(StageConfig):
-    """Which translator, how much of the real fine-tuning pool it learns from, what it translates."""
+    """Which translator, how much of the real fine-tuning pool it fits on, what it translates."""
 
     translator: str = "sim"
     translator_config: dict[str, Any] = {}
@@ -55,7 +55,10 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     if translator.trainable and config.fit_fraction > 0:
         pairs = _fit_subset(BrailleSet.load(data.path("finetune")), config.fit_fraction, ctx.seed)
         translator.fit_pairs(
-            pairs.depth, pairs.foreground("real"), ctx.directory, ctx.trainer,
+            pairs.depth,
+            pairs.foreground("real"),
+            ctx.directory,
+            ctx.trainer,
             loggers=make_loggers(ctx.directory, f"{ctx.name}-{config.translator}"),
         )
         metrics["fit_pairs"] = len(pairs)
@@ -65,7 +68,9 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     for name in config.sets:
         split = BrailleSet.load(data.path(name))
         background = torch.from_numpy(
-            np.asarray(split.sim_background if config.background == "sim" else split.real_background)
+            np.asarray(
+                split.sim_background if config.background == "sim" else split.real_background
+            )
         ).float()
         chunks = [
             translator.translate(split.depth[i : i + config.batch_size], background, gen)
@@ -74,7 +79,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         images = torch.cat(chunks).round().clamp(0, 255).to(torch.uint8)
         atomic_write_npz(
             ctx.directory / f"{name}.npz",
-            images=images.numpy(), background=background.round().to(torch.uint8).numpy(),
+            images=images.numpy(),
+            background=background.round().to(torch.uint8).numpy(),
             labels=split.labels.numpy(),
         )
         outputs[name] = f"{name}.npz"
