@@ -1,0 +1,6 @@
+"""Image metrics as the paper reports them, and a weight-free distribution distance."""
+
+from tactile_bench.metrics.encoder import FeatureEncoder, fit_encoder, kid, mmd2_unbiased
+from tactile_bench.metrics.image import ssim_mse
+
+__all__ = ["FeatureEncoder", "fit_encoder", "kid", "mmd2_unbiased", "ssim_mse"]

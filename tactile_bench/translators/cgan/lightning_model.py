@@ -1,0 +1,114 @@
+"""The ``cgan`` translator: the paper's pix2pix baseline, trained with manual optimisation.
+
+The generator sees depth_mm / ``depth_scale_mm`` and outputs tanh values t in [-1, 1];
+foreground = 0.5 + t / 2, i.e. pix2pix's usual [-1, 1] image space applied to the
+background-free foreground, so every foreground in 0..1 is reachable.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from lightning.pytorch.loggers import Logger
+from pydantic import Field
+
+from tactile_bench.translators.base import Translator, TranslatorConfig
+from tactile_bench.translators.cgan.loss import discriminator_loss, generator_loss
+from tactile_bench.translators.cgan.torch_model import PatchDiscriminator, UNetGenerator
+
+
+class CGANConfig(TranslatorConfig):
+    """pix2pix defaults (Adam 2e-4, betas (0.5, 0.999), lambda_L1 = 100), CPU-sized networks.
+
+    ``max_steps`` counts generator updates (each also makes one discriminator update).
+    """
+
+    max_steps: int = Field(default=1000, ge=0)
+    lr: float = Field(default=2e-4, gt=0)
+    beta1: float = Field(default=0.5, ge=0, lt=1)
+    l1_weight: float = Field(default=100.0, ge=0)
+    generator_channels: int = Field(default=16, ge=1)
+    num_downs: int = Field(default=4, ge=2)
+    discriminator_channels: int = Field(default=16, ge=1)
+    discriminator_layers: int = Field(default=3, ge=1)
+    dropout: float = Field(default=0.5, ge=0, lt=1)
+    depth_scale_mm: float = Field(default=1.0, gt=0)
+
+
+class CGANTranslator(Translator):
+    """Depth -> foreground with a U-Net generator; deterministic at inference (no dropout)."""
+
+    name = "cgan"
+    Config = CGANConfig
+
+    def __init__(self, config: CGANConfig | dict[str, Any] | None = None) -> None:
+        super().__init__(config)
+        self.automatic_optimization = False
+        cfg = self.config
+        with torch.random.fork_rng(devices=[]):  # same seed -> same initial weights
+            torch.manual_seed(cfg.seed)
+            self.generator = UNetGenerator(
+                1, 3, cfg.generator_channels, cfg.num_downs, dropout=cfg.dropout
+            )
+            self.discriminator = PatchDiscriminator(
+                4, cfg.discriminator_channels, cfg.discriminator_layers
+            )
+
+    def condition(self, depth: torch.Tensor) -> torch.Tensor:
+        return depth.float() / self.config.depth_scale_mm
+
+    def forward(self, depth: torch.Tensor) -> torch.Tensor:
+        """Generator output in [-1, 1] (pix2pix image space)."""
+        return self.generator(self.condition(depth))
+
+    def fit_pairs(
+        self,
+        depth: torch.Tensor,
+        foreground: torch.Tensor,
+        out_dir: Path,
+        trainer: dict[str, Any] | None = None,
+        loggers: list[Logger] | None = None,
+    ) -> None:
+        """As the base class, but Lightning counts both optimisers' steps: ask for twice as many."""
+        settings = {"max_steps": 2 * self.config.max_steps, **(trainer or {})}
+        super().fit_pairs(depth, foreground, out_dir, settings, loggers)
+
+    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> None:
+        depth, foreground = batch
+        g_opt, d_opt = self.optimizers()
+        condition = self.condition(depth)
+        real = (foreground.float() - 0.5) * 2.0
+        fake = self.generator(condition)
+
+        d_loss = discriminator_loss(
+            self.discriminator(condition, real), self.discriminator(condition, fake.detach())
+        )
+        d_opt.zero_grad()
+        self.manual_backward(d_loss)
+        d_opt.step()
+
+        g_loss, adversarial, l1 = generator_loss(
+            self.discriminator(condition, fake), fake, real, self.config.l1_weight
+        )
+        g_opt.zero_grad()
+        self.manual_backward(g_loss)
+        g_opt.step()
+        self.log_dict(
+            {"d_loss": d_loss, "g_loss": g_loss, "g_adv": adversarial, "g_l1": l1},
+            prog_bar=True, batch_size=len(depth),
+        )
+
+    def configure_optimizers(self) -> list[torch.optim.Optimizer]:
+        betas = (self.config.beta1, 0.999)
+        return [
+            torch.optim.Adam(self.generator.parameters(), lr=self.config.lr, betas=betas),
+            torch.optim.Adam(self.discriminator.parameters(), lr=self.config.lr, betas=betas),
+        ]
+
+    def translate_foreground(
+        self, depth: torch.Tensor, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """Deterministic: ``generator`` is unused (pix2pix's dropout noise is off at inference)."""
+        return (0.5 + 0.5 * self(depth)).clamp(0.0, 1.0)
