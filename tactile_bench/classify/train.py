@@ -1,0 +1,240 @@
+"""Train a braille classifier on in-memory foregrounds, and evaluate it.
+
+CPU defaults: width 16, ResNet-18 blocks (2, 2, 2, 2), stride-2 3 x 3 stem (70 MFLOP a
+forward pass, see ``classify.model``), Adam lr 1e-3 (the paper's 1e-4 is too slow for a
+few epochs from scratch), batch 20 as the paper. ``ClassifierConfig.paper()`` is the paper's
+own ResNet-18 setting, for GPUs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import lightning as L
+import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.loggers import CSVLogger, Logger
+from torch import nn
+from torchmetrics.functional.classification import (
+    multiclass_accuracy,
+    multiclass_confusion_matrix,
+    multiclass_precision,
+    multiclass_recall,
+)
+
+from tactile_bench.classify.model import NUM_CLASSES
+from tactile_bench.classify.module import BrailleClassifier
+from tactile_bench.data.datamodule import ForegroundDataModule
+
+Precision = Literal["32-true", "bf16-mixed"]
+
+
+@dataclass
+class ClassifierConfig:
+    """Architecture and optimisation of one classifier training.
+
+    Defaults are sized for a 2-core CPU: about 10k 64 x 64 images train in a few minutes
+    and reach their plateau. ``paper()`` gives the paper's ResNet-18 settings.
+
+    ``precise_bn_images``: after training, BatchNorm running statistics are re-estimated
+    on up to this many training images with the final weights ("precise BN", Wu & Johnson
+    2021). The running averages otherwise lag behind weights that moved fast in a short
+    training, and eval-mode accuracy can then collapse; 0 disables it.
+    """
+
+    width: int = 16
+    blocks: tuple[int, ...] = (2, 2, 2, 2)
+    stem: Literal["cifar", "light", "imagenet"] = "light"
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    batch_size: int = 20
+    epochs: int = 4
+    seed: int = 0
+    precision: Precision = "32-true"
+    augment: bool = False
+    shift_px: int = 2
+    val_fraction: float = 0.0
+    num_workers: int = 0
+    precise_bn_images: int = 2048
+    extra: dict[str, Any] = field(default_factory=dict)  # free-form notes, logged as hparams
+
+    def __post_init__(self) -> None:
+        self.blocks = tuple(int(b) for b in self.blocks)
+        if self.precision not in ("32-true", "bf16-mixed"):
+            raise ValueError(f"precision must be '32-true' or 'bf16-mixed', got {self.precision!r}")
+
+    @classmethod
+    def paper(cls, **overrides: Any) -> ClassifierConfig:
+        """The paper's classifier: ResNet-18 (width 64), Adam lr 1e-4, batch 20."""
+        values: dict[str, Any] = dict(width=64, blocks=(2, 2, 2, 2), lr=1e-4, batch_size=20)
+        values.update(overrides)
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-type dict (tuples as lists) for hashing, YAML and logging."""
+        d = dataclasses.asdict(self)
+        d["blocks"] = list(self.blocks)
+        return d
+
+
+def _close_wandb(loggers: Sequence[Logger]) -> None:
+    """Finish the wandb runs of ``loggers``: wandb keeps one run per process, and the next
+    training's WandbLogger would otherwise silently attach to this one."""
+    for logger in loggers:
+        if type(logger).__name__ == "WandbLogger" and getattr(logger, "_experiment", None):
+            logger.experiment.finish()
+            logger._experiment = None
+
+
+def train_classifier(
+    train_fg: torch.Tensor,
+    train_labels: torch.Tensor,
+    config: ClassifierConfig | None = None,
+    out_dir: str | Path = "classifier",
+    loggers: Sequence[Logger] | None = None,
+    trainer_kwargs: dict[str, Any] | None = None,
+    val: tuple[torch.Tensor, torch.Tensor] | None = None,
+    num_classes: int = NUM_CLASSES,
+    close_loggers: bool = True,
+) -> BrailleClassifier:
+    """Fit a :class:`BrailleClassifier` on foregrounds (N, C, S, S) and labels (N,).
+
+    Deterministic under ``config.seed`` (weights, batch order, augmentation) on a fixed
+    number of threads. Writes ``out_dir/checkpoints/last.ckpt``; logs to ``loggers``
+    (default: a CSVLogger in ``out_dir``). ``trainer_kwargs`` override the Trainer's
+    arguments (e.g. ``limit_train_batches``, ``accelerator``, ``enable_progress_bar``).
+    Returns the model after the last epoch, in eval mode, on the CPU.
+    """
+    config = config or ClassifierConfig()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    L.seed_everything(config.seed, workers=True, verbose=False)
+    datamodule = ForegroundDataModule(
+        train=(train_fg, train_labels),
+        val=val,
+        batch_size=config.batch_size,
+        num_workers=config.num_workers,
+        seed=config.seed,
+        val_fraction=config.val_fraction,
+    )
+    model = BrailleClassifier(
+        num_classes=num_classes,
+        in_channels=int(train_fg.shape[1]),
+        width=config.width,
+        blocks=config.blocks,
+        stem=config.stem,
+        lr=config.lr,
+        weight_decay=config.weight_decay,
+        augment=config.augment,
+        shift_px=config.shift_px,
+    )
+    has_val = datamodule.val_set is not None
+    steps_per_epoch = max(1, -(-len(datamodule.train_set) // config.batch_size))
+    logger_list = list(loggers) if loggers is not None else [CSVLogger(str(out_dir), name="logs")]
+    kwargs: dict[str, Any] = dict(
+        max_epochs=config.epochs,
+        accelerator="cpu",
+        devices=1,
+        precision=config.precision,
+        logger=logger_list,
+        default_root_dir=str(out_dir),
+        enable_model_summary=False,
+        enable_progress_bar=True,
+        log_every_n_steps=min(50, steps_per_epoch),
+        num_sanity_val_steps=0,
+        limit_val_batches=1.0 if has_val else 0,
+    )
+    user = dict(trainer_kwargs or {})
+    callbacks = list(user.pop("callbacks", None) or [])
+    if user.get("enable_checkpointing", True):
+        checkpoint = ModelCheckpoint(dirpath=out_dir / "checkpoints", filename="last", save_top_k=1)
+        callbacks.insert(0, checkpoint)
+    kwargs.update(user, callbacks=callbacks)
+    for logger in logger_list:
+        logger.log_hyperparams({"classifier": config.to_dict(), "n_train": len(train_labels)})
+    trainer = L.Trainer(**kwargs)
+    try:
+        trainer.fit(model, datamodule=datamodule)
+    finally:
+        if close_loggers:
+            _close_wandb(logger_list)
+    model = model.cpu()
+    if config.precise_bn_images > 0:
+        x = datamodule.train_set.tensors[0]
+        g = torch.Generator().manual_seed(config.seed)
+        idx = torch.randperm(len(x), generator=g)[: config.precise_bn_images]
+        recalibrate_batchnorm(model, x[idx], batch_size=max(config.batch_size, 64))
+    return model.eval()
+
+
+@torch.no_grad()
+def recalibrate_batchnorm(model: nn.Module, fg: torch.Tensor, batch_size: int = 64) -> None:
+    """Replace BatchNorm running statistics by their exact average over ``fg`` batches."""
+    norms = [m for m in model.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+    if not norms or len(fg) == 0:
+        return
+    was_training = model.training
+    momenta = [m.momentum for m in norms]
+    for m in norms:
+        m.reset_running_stats()
+        m.momentum = None  # cumulative moving average: the plain mean over batches
+    model.train()
+    batch_size = min(batch_size, len(fg))
+    for i in range(0, len(fg) - batch_size + 1, batch_size):  # full batches only
+        model(fg[i : i + batch_size].float())
+    for m, momentum in zip(norms, momenta, strict=True):
+        m.momentum = momentum
+    model.train(was_training)
+
+
+@torch.no_grad()
+def predict(model: nn.Module, fg: torch.Tensor, batch_size: int = 256) -> torch.Tensor:
+    """Predicted class (N,) for foregrounds (N, C, S, S), in eval mode and in batches."""
+    was_training = model.training
+    model.eval()
+    device = next(model.parameters()).device
+    preds = [
+        model(fg[i : i + batch_size].to(device).float()).argmax(dim=1).cpu()
+        for i in range(0, len(fg), batch_size)
+    ]
+    model.train(was_training)
+    return torch.cat(preds) if preds else torch.empty(0, dtype=torch.long)
+
+
+def evaluate(
+    model: nn.Module,
+    fg: torch.Tensor,
+    labels: torch.Tensor,
+    batch_size: int = 256,
+    num_classes: int = NUM_CLASSES,
+) -> dict[str, Any]:
+    """The paper's metrics on (fg, labels): micro accuracy, macro precision and recall.
+
+    Returns ``accuracy``, ``precision``, ``recall`` (floats in [0, 1]), ``confusion``
+    (``num_classes`` lists of ints, rows = true class, columns = predicted),
+    ``per_class_accuracy`` (recall of each class; None for a class absent from ``labels``)
+    and ``n``. Macro averages skip classes absent from both labels and predictions (as
+    torchmetrics and scikit-learn do); a class never predicted counts as precision 0.
+    """
+    labels = labels.long().cpu()
+    if len(labels) == 0:
+        raise ValueError("evaluate: empty test set")
+    preds = predict(model, fg, batch_size)
+    kw: dict[str, Any] = dict(num_classes=num_classes)
+    confusion = multiclass_confusion_matrix(preds, labels, **kw)
+    support = confusion.sum(dim=1)
+    per_class = [
+        float(confusion[c, c] / support[c]) if support[c] > 0 else None for c in range(num_classes)
+    ]
+    return {
+        "accuracy": float(multiclass_accuracy(preds, labels, average="micro", **kw)),
+        "precision": float(multiclass_precision(preds, labels, average="macro", **kw)),
+        "recall": float(multiclass_recall(preds, labels, average="macro", **kw)),
+        "confusion": confusion.tolist(),
+        "per_class_accuracy": per_class,
+        "n": int(len(labels)),
+    }
