@@ -178,3 +178,103 @@ def test_jpeg_approximation_close_to_a_real_encoder() -> None:
     err_ours = (ours - img).abs().mean()
     assert float((ours - real).abs().mean()) < 1.5
     assert 0.3 < float(err_ours / err_real) < 3.0
+
+
+# --------------------------------------------------------------------------- fast paths
+# The effects run as matrix products, per-image kernels and in-cache sub-batches. These are
+# the direct, slow definitions they replaced (conv2d blur, N grid_sample shifts, JPEG via
+# interpolate + 8 x 8 block DCT, masks by torch.where): the fast paths must match them.
+def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
+    import math
+
+    from tactile_bench.effects.base import _conv1d_slices, gaussian_kernel1d
+
+    if sx > 4 and sy > 4:  # the wide path: 2x area down, blur, bilinear up
+        small = torch.nn.functional.avg_pool2d(x, 2)
+        small = _ref_blur(small, (sx**2 - 1 / 12) ** 0.5 / 2, (sy**2 - 1 / 12) ** 0.5 / 2)
+        return torch.nn.functional.interpolate(small, size=x.shape[-2:], mode="bilinear")
+    kx = gaussian_kernel1d(torch.tensor(sx), min(64, math.ceil(3 * sx), x.shape[-1] - 1))
+    ky = gaussian_kernel1d(torch.tensor(sy), min(64, math.ceil(3 * sy), x.shape[-2] - 1))
+    return _conv1d_slices(_conv1d_slices(x, kx, -1), ky, -2)
+
+
+@pytest.mark.parametrize(("sx", "sy"), [(0.43, 0.32), (1.6, 1.2), (6.4, 4.8), (17.8, 13.3)])
+def test_matrix_blur_matches_convolution(sx: float, sy: float) -> None:
+    from tactile_bench.effects.base import gaussian_blur
+
+    x = torch.randn(3, 2, 128, 96, generator=_gen())
+    ours = gaussian_blur(x, torch.tensor(sx), torch.tensor(sy))
+    assert torch.allclose(ours, _ref_blur(x, sx, sy), atol=1e-5)
+    # differentiable in sigma through the matrices
+    s = torch.tensor(sx, requires_grad=True)
+    gaussian_blur(x, s, torch.tensor(sy)).square().sum().backward()
+    assert s.grad is not None and torch.isfinite(s.grad)
+
+
+@pytest.mark.parametrize("smear_mm", [0.1, 1.2])
+def test_shear_smear_matches_shifted_samples(smear_mm: float) -> None:
+    from tactile_bench.effects.base import shift_mm
+
+    effect, x = get_effect("shear_smear"), _height(4, 64)
+    ours = effect.apply(x, {"smear_mm": smear_mm}, _gen(3), CTX)
+    theta = torch.rand(4, generator=_gen(3)) * 2 * np.pi
+    steps = [smear_mm * k / (effect.steps - 1) for k in range(effect.steps)]
+    ref = sum(shift_mm(x, t * torch.cos(theta), t * torch.sin(theta), CTX) for t in steps)
+    assert torch.allclose(ours, ref / effect.steps, atol=1e-5)
+
+
+def test_elastic_spread_matches_masked_pyramid() -> None:
+    from tactile_bench.effects.base import gaussian_blur
+
+    x = _height(3, 96)
+    ours = get_effect("elastic_spread").apply(x, None, None, CTX)
+    pen = x.clamp(min=0)
+    core = pen > 0.4 * pen.amax(dim=(2, 3), keepdim=True)
+    z, level, (dx, dy) = pen, 0.9, CTX.mm_per_px(x)
+    while level / min(dx, dy) >= 1:
+        z = torch.where(
+            core, pen, gaussian_blur(z, torch.tensor(level / dx), torch.tensor(level / dy))
+        )
+        level /= 2
+    assert torch.allclose(ours, torch.where(z > 0, torch.maximum(z, x), x), atol=1e-6)
+
+
+def _ref_jpeg(x: torch.Tensor, quality: float, hw: tuple[int, int]) -> torch.Tensor:
+    from tactile_bench.effects.camera import _dct_matrix, quant_tables
+
+    f = torch.nn.functional
+    d2 = torch.kron(_dct_matrix(), _dct_matrix())
+
+    def blocks(plane: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
+        n, h, w = plane.shape
+        b = plane.reshape(n, h // 8, 8, w // 8, 8).permute(0, 1, 3, 2, 4).reshape(-1, 64)
+        coef = torch.round((b @ d2.T) / table.reshape(64)) * table.reshape(64)
+        b = (coef @ d2).reshape(n, h // 8, w // 8, 8, 8)
+        return b.permute(0, 1, 3, 2, 4).reshape(n, h, w)
+
+    n, _, s, _ = x.shape
+    (hh, ww), (q_l, q_c) = hw, quant_tables(quality)
+    r, g, b = x[:, 0], x[:, 1], x[:, 2]
+    lum = 0.299 * r + 0.587 * g + 0.114 * b - 128
+    cb = -0.168736 * r - 0.331264 * g + 0.5 * b
+    cr = 0.5 * r - 0.418688 * g - 0.081312 * b
+    lum = f.interpolate(lum[:, None], size=(hh, ww), mode="bilinear")[:, 0]
+    ch = f.interpolate(torch.stack([cb, cr], 1), size=(hh // 2, ww // 2), mode="bilinear")
+    lum = f.adaptive_avg_pool2d(blocks(lum, q_l)[:, None], s)[:, 0] + 128
+    ch = blocks(ch.reshape(2 * n, hh // 2, ww // 2), q_c).reshape(n, 2, hh // 2, ww // 2)
+    cb, cr = f.adaptive_avg_pool2d(ch, s).unbind(1)
+    rgb = torch.stack([lum + 1.402 * cr, lum - 0.344136 * cb - 0.714136 * cr, lum + 1.772 * cb], 1)
+    return rgb.clamp(0, 255)
+
+
+@pytest.mark.parametrize(("quality", "size"), [(85, 64), (40, 64), (95, 32)])
+def test_jpeg_matrices_match_block_dct(quality: float, size: int) -> None:
+    """Same maths in another order: a coefficient within float rounding of a .5 step may round
+    the other way (~1e-5 of them), moving a few output pixels by < 2 DN."""
+    x = _input("camera", 6)
+    x = torch.nn.functional.adaptive_avg_pool2d(
+        x + 9 * torch.randn(x.shape, generator=_gen()), size
+    )
+    d = (jpeg_approx(x, quality, (320, 240)) - _ref_jpeg(x, quality, (320, 240))).abs()
+    assert float(d.mean()) < 1e-3 and float(d.max()) < 2.0
+    assert float((d > 1e-3).float().mean()) < 1e-3

@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from typing import Any, ClassVar, Literal
 
 import torch
@@ -210,6 +211,31 @@ class Effect(ABC):
 
 
 # ---------------------------------------------------------------------------- helpers
+SUB_BATCH_ELEMENTS = 1 << 18  # values per image slice x images per pass (1 MB of float32)
+
+
+def per_sub_batch(
+    fn: Callable[..., torch.Tensor], *xs: Any, size: int | None = None
+) -> torch.Tensor:
+    """``fn(*xs)`` evaluated on consecutive slices of the batch and concatenated.
+
+    Same result (every image is computed on its own), but each of ``fn``'s many elementwise
+    passes then runs in a core's cache instead of main memory (~1.1-1.5x faster on CPU).
+    By default a slice holds ~``SUB_BATCH_ELEMENTS`` values of ``xs[0]``. Tensors whose
+    first dim is not the batch (broadcast ones, scalars) and non-tensors go in whole.
+    """
+    n = xs[0].shape[0]
+    size = size or max(1, SUB_BATCH_ELEMENTS // max(1, xs[0][:1].numel()))
+    if n <= size:
+        return fn(*xs)
+
+    def part(x: Any, i: int) -> Any:
+        sliced = isinstance(x, torch.Tensor) and x.dim() > 0 and x.shape[0] == n
+        return x[i : i + size] if sliced else x
+
+    return torch.cat([fn(*(part(x, i) for x in xs)) for i in range(0, n, size)])
+
+
 def scalar(value: ParamValue) -> float:
     """A parameter value as a plain float (for shapes, counts, seeds: not differentiated)."""
     return float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
@@ -229,33 +255,82 @@ def gaussian_blur(
     """Separable Gaussian blur of (N, C, H, W) with reflect padding; sigma in pixels.
 
     Wide blurs (sigma > 4 px on both axes) run on a 2x area-downsampled copy and are
-    upsampled back: same result to ~1% for a smooth field, several times cheaper.
+    upsampled back: same result to ~1% for a smooth field. The whole 1-D blur of each axis
+    (padding, taps, down/upsampling) is one H x H or W x W matrix, so the blur is two GEMMs,
+    ``My @ x @ Mx^T``: at these sizes (<= a few hundred px) ~15x faster on CPU than a
+    1-channel ``conv2d``, and differentiable in sigma through the matrices.
     """
-    if (
-        float(sigma_x_px.detach()) > 4
-        and float(sigma_y_px.detach()) > 4
-        and min(x.shape[-2:]) >= 16
-        and x.shape[-1] % 2 == 0
-        and x.shape[-2] % 2 == 0
-    ):
-        small = F.avg_pool2d(x, 2)
+    my, mx = blur_matrices(x.shape[-2], x.shape[-1], sigma_x_px, sigma_y_px, max_radius)
+    return torch.matmul(my.to(x), torch.matmul(x, mx.to(x).T))
+
+
+def blur_matrices(
+    h: int, w: int, sigma_x_px: ParamValue, sigma_y_px: ParamValue, max_radius: int = 64
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(My (H, H), Mx (W, W)) of ``gaussian_blur``; cached unless a sigma is being fitted."""
+    sx, sy = as_tensor(sigma_x_px), as_tensor(sigma_y_px)
+    if sx.requires_grad or sy.requires_grad:
+        return _blur_matrices(h, w, sx, sy, max_radius)
+    return _cached_blur_matrices(h, w, float(sx), float(sy), max_radius)
+
+
+@lru_cache(maxsize=64)
+def _cached_blur_matrices(
+    h: int, w: int, sx: float, sy: float, max_radius: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    return _blur_matrices(h, w, torch.tensor(sx), torch.tensor(sy), max_radius)
+
+
+def _blur_matrices(
+    h: int, w: int, sx: torch.Tensor, sy: torch.Tensor, max_radius: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    wide = float(sx.detach()) > 4 and float(sy.detach()) > 4 and min(h, w) >= 16
+    if wide and h % 2 == 0 and w % 2 == 0:
         # the 2x2 box already blurs by sqrt(1/12) px (at full res); take it off
-        sx = torch.sqrt((sigma_x_px**2 - 1 / 12).clamp(min=1e-6)) / 2
-        sy = torch.sqrt((sigma_y_px**2 - 1 / 12).clamp(min=1e-6)) / 2
-        small = gaussian_blur(small, sx, sy, max_radius)
-        return F.interpolate(small, size=x.shape[-2:], mode="bilinear", align_corners=False)
-    rx = min(max_radius, max(1, math.ceil(3.0 * float(sigma_x_px.detach()))), x.shape[-1] - 1)
-    ry = min(max_radius, max(1, math.ceil(3.0 * float(sigma_y_px.detach()))), x.shape[-2] - 1)
-    kx = gaussian_kernel1d(sigma_x_px, rx).to(x)
-    ky = gaussian_kernel1d(sigma_y_px, ry).to(x)
-    return _conv1d_slices(_conv1d_slices(x, kx, -1), ky, -2)
+        sx2 = torch.sqrt((sx**2 - 1 / 12).clamp(min=1e-6)) / 2
+        sy2 = torch.sqrt((sy**2 - 1 / 12).clamp(min=1e-6)) / 2
+        my, mx = _blur_matrices(h // 2, w // 2, sx2, sy2, max_radius)
+        up_y, up_x = _upsample_matrix(h), _upsample_matrix(w)
+        return up_y @ my @ _pool_matrix(h), up_x @ mx @ _pool_matrix(w)
+    rx = min(max_radius, max(1, math.ceil(3.0 * float(sx.detach()))), w - 1)
+    ry = min(max_radius, max(1, math.ceil(3.0 * float(sy.detach()))), h - 1)
+    return _conv_matrix(h, gaussian_kernel1d(sy, ry)), _conv_matrix(w, gaussian_kernel1d(sx, rx))
+
+
+def _conv_matrix(n: int, k: torch.Tensor) -> torch.Tensor:
+    """(n, n) matrix of the reflect-padded correlation with taps ``k``: the conv of an identity."""
+    return _conv1d_slices(torch.eye(n)[None, None], k, -1)[0, 0].T
+
+
+@lru_cache(maxsize=16)
+def _pool_matrix(n: int) -> torch.Tensor:
+    """(n / 2, n): 2x area downsampling along one axis."""
+    return torch.eye(n).reshape(n // 2, 2, n).mean(1)
+
+
+@lru_cache(maxsize=16)
+def _upsample_matrix(n: int) -> torch.Tensor:
+    """(n, n / 2): ``F.interpolate`` bilinear (align_corners False) 2x upsampling along one axis."""
+    return resize_matrix(n, n // 2, "bilinear")
+
+
+def resize_matrix(out: int, n: int, mode: str) -> torch.Tensor:
+    """(out, n) matrix of a 1-D resize, built by resizing an identity with torch's own op.
+
+    ``mode`` is ``"bilinear"`` (``F.interpolate``, align_corners False) or ``"area"``
+    (``F.adaptive_avg_pool2d``); torch's 2-D resizes are separable, so two such matrices
+    reproduce them.
+    """
+    eye = torch.eye(n)[None, None]
+    if mode == "area":
+        return F.adaptive_avg_pool2d(eye, (out, n))[0, 0]
+    return F.interpolate(eye, size=(out, n), mode="bilinear", align_corners=False)[0, 0]
 
 
 def _conv1d_slices(x: torch.Tensor, k: torch.Tensor, dim: int) -> torch.Tensor:
     """Correlate every (N, C) plane along ``dim`` with taps ``k``, reflect padding.
 
-    A 1-channel ``conv2d`` (differentiable in the taps too); measured 2x faster here than a
-    sum of shifted slices with autograd.
+    The reference definition of one blur axis; ``_conv_matrix`` runs it once on an identity.
     """
     n, c, h, w = x.shape
     r = (k.numel() - 1) // 2
@@ -265,8 +340,12 @@ def _conv1d_slices(x: torch.Tensor, k: torch.Tensor, dim: int) -> torch.Tensor:
     return y.reshape(n, c, h, w)
 
 
+@lru_cache(maxsize=32)
 def pixel_grid(h: int, w: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Normalised pixel-centre coordinates u (right), v (down) in [-1, 1], each (H, W)."""
+    """Normalised pixel-centre coordinates u (right), v (down) in [-1, 1], each (H, W).
+
+    Cached per size: treat the tensors as read-only.
+    """
     v = (torch.arange(h, dtype=torch.float32) + 0.5) / h * 2 - 1
     u = (torch.arange(w, dtype=torch.float32) + 0.5) / w * 2 - 1
     vv, uu = torch.meshgrid(v, u, indexing="ij")

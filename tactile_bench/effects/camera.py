@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from functools import lru_cache
 
 import torch
-import torch.nn.functional as F
 
 from tactile_bench.effects.base import (
     Effect,
@@ -22,8 +22,10 @@ from tactile_bench.effects.base import (
     ParamValue,
     as_tensor,
     gaussian_blur,
+    per_sub_batch,
     pixel_grid,
     randn,
+    resize_matrix,
     scalar,
 )
 
@@ -109,8 +111,13 @@ class CameraNoise(Effect):
     ) -> torch.Tensor:
         if not ctx.stochastic:
             return x
-        var = as_tensor(p["read_noise"]) ** 2 + as_tensor(p["shot_gain"]) * x.clamp(min=0.0)
-        return x + torch.sqrt(var + 1e-12) * randn(tuple(x.shape), generator)
+        noise = randn(tuple(x.shape), generator)
+        read2, shot = as_tensor(p["read_noise"]) ** 2, as_tensor(p["shot_gain"])
+
+        def noisy(x: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+            return x + torch.sqrt(read2 + shot * x.clamp(min=0.0) + 1e-12) * noise
+
+        return per_sub_batch(noisy, x, noise)
 
 
 class GammaWhiteBalance(Effect):
@@ -139,8 +146,8 @@ class GammaWhiteBalance(Effect):
     ) -> torch.Tensor:
         one = torch.ones(())
         wb = torch.stack([as_tensor(p["wb_r"]), one, as_tensor(p["wb_b"])]).view(1, 3, 1, 1)
-        y = (x * wb / 255.0).clamp(1e-4, 1.0)
-        return 255.0 * y ** (1.0 / as_tensor(p["gamma"]))
+        inv_gamma = 1.0 / as_tensor(p["gamma"])
+        return per_sub_batch(lambda x: 255.0 * (x * wb / 255.0).clamp(1e-4, 1.0) ** inv_gamma, x)
 
 
 # --------------------------------------------------------------------------- JPEG
@@ -180,25 +187,91 @@ def _dct_matrix() -> torch.Tensor:
     return d
 
 
-@lru_cache(maxsize=1)
-def _dct2_matrix() -> torch.Tensor:
-    d = _dct_matrix()
-    return torch.kron(d, d)
-
-
 def _round_ste(x: torch.Tensor) -> torch.Tensor:
     return x + (torch.round(x) - x).detach()
 
 
-def _block_quantise(plane: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
-    """DCT-quantise-IDCT of (N, H, W) planes in 8 x 8 blocks (H, W multiples of 8)."""
-    n, h, w = plane.shape
-    d2 = _dct2_matrix()  # (64, 64): 2-D DCT of a flattened 8 x 8 block as one GEMM
-    b = plane.reshape(n, h // 8, 8, w // 8, 8).permute(0, 1, 3, 2, 4).reshape(-1, 64)
-    table = table.reshape(64)
-    coef = _round_ste((b @ d2.T) / table) * table
-    b = (coef @ d2).reshape(n, h // 8, w // 8, 8, 8)
-    return b.permute(0, 1, 3, 2, 4).reshape(n, h, w)
+@dataclass(frozen=True)
+class _Rows:
+    """A banded (M, K) matrix applied along rows: groups of ``g`` output rows each read a
+    window of ``w`` consecutive input rows, so the product is one batched small GEMM."""
+
+    index: torch.Tensor | None  # (G * w,) input rows window by window; None: windows tile x
+    blocks: torch.Tensor  # (G, g, w)
+
+    @classmethod
+    def of(cls, m: torch.Tensor) -> _Rows:
+        """Split ``m`` into the row groups that cost least (multiply-adds + rows copied)."""
+        rows, cols = m.shape
+        best: tuple[int, torch.Tensor, torch.Tensor] | None = None
+        for g in (d for d in range(1, rows + 1) if rows % d == 0):
+            used = m.reshape(rows // g, g, cols).abs().amax(1) > 0  # (G, K)
+            first = used.float().argmax(1)
+            width = int((cols - used.flip(1).float().argmax(1) - first).max())
+            index = (first.clamp(max=cols - width)[:, None] + torch.arange(width)).reshape(-1)
+            tiled = index.numel() == cols and bool((index == torch.arange(cols)).all())
+            cost = rows * width + (0 if tiled else 8 * index.numel())
+            if best is None or cost < best[0]:
+                best = (cost, index, m.reshape(rows // g, g, cols))
+        _, index, grouped = best
+        blocks = torch.gather(
+            grouped, 2, index.view(len(grouped), 1, -1).expand(grouped.shape[:2] + (-1,))
+        )
+        tiled = index.numel() == cols
+        return cls(None if tiled else index, blocks.contiguous())
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        """``m @ x`` for x (..., K, C)."""
+        groups, _, width = self.blocks.shape
+        windows = x if self.index is None else x.index_select(-2, self.index)
+        return torch.matmul(self.blocks, windows.unflatten(-2, (groups, width))).flatten(-3, -2)
+
+
+@dataclass(frozen=True)
+class _PlaneCodec:
+    """JPEG of one plane size as matrices: resize up, 8 x 8 block DCT (forward ``rows``/
+    ``cols``), quantisation table, inverse DCT and area-average back (``back_rows``/``back_cols``).
+    Resizes and DCTs are linear and separable, so only the quantisation is not a product."""
+
+    rows: _Rows  # (hh, s_h): upsample then DCT along y
+    cols: torch.Tensor  # (s_w, ww): upsample then DCT along x, transposed
+    table: torch.Tensor  # (hh, ww) quantisation step of each coefficient
+    back_rows: _Rows  # (s_h, hh): inverse DCT then area-average along y
+    back_cols: torch.Tensor  # (ww, s_w), transposed
+
+    def __call__(self, plane: torch.Tensor) -> torch.Tensor:
+        """(B, s_h, s_w) -> same, after coding at (hh, ww)."""
+        coef = self.rows(plane @ self.cols)
+        if coef.requires_grad:
+            coef = _round_ste(coef / self.table) * self.table
+        else:  # in place: the coefficients are the largest tensors of the surrogate
+            coef = coef.div_(self.table).round_().mul_(self.table)
+        return self.back_rows(coef) @ self.back_cols
+
+
+def _block_dct(n: int) -> torch.Tensor:
+    """(n, n) block-diagonal orthonormal DCT-II of 8-sample blocks."""
+    return torch.block_diag(*[_dct_matrix()] * (n // 8))
+
+
+@lru_cache(maxsize=16)
+def _plane_codec(size: tuple[int, int], coded: tuple[int, int], table: tuple) -> _PlaneCodec:
+    (s_h, s_w), (hh, ww) = size, coded
+    d_h, d_w = _block_dct(hh), _block_dct(ww)
+    q = torch.tensor(table, dtype=torch.float32).repeat(hh // 8, ww // 8)
+    return _PlaneCodec(
+        rows=_Rows.of(d_h @ resize_matrix(hh, s_h, "bilinear")),
+        cols=(d_w @ resize_matrix(ww, s_w, "bilinear")).T.contiguous(),
+        table=q,
+        back_rows=_Rows.of(resize_matrix(s_h, hh, "area") @ d_h.T),
+        back_cols=(resize_matrix(s_w, ww, "area") @ d_w.T).T.contiguous(),
+    )
+
+
+_RGB_TO_YCC = torch.tensor(
+    [[0.299, 0.587, 0.114], [-0.168736, -0.331264, 0.5], [0.5, -0.418688, -0.081312]]
+)
+_YCC_TO_RGB = torch.tensor([[1.0, 0.0, 1.402], [1.0, -0.344136, -0.714136], [1.0, 1.772, 0.0]])
 
 
 def jpeg_approx(x: torch.Tensor, quality: float, native_hw: tuple[int, int]) -> torch.Tensor:
@@ -207,27 +280,19 @@ def jpeg_approx(x: torch.Tensor, quality: float, native_hw: tuple[int, int]) -> 
     The image is resized to the native frame, compressed like libjpeg (JFIF YCbCr, Annex K
     tables, 2x2 chroma subsampling, rounding with a straight-through gradient) and resized
     back with area averaging. Not bit-exact libjpeg (no integer DCT, bilinear chroma).
+    Everything but the rounding is linear and separable, so each plane is two matrix
+    products to its DCT coefficients and two back (``_PlaneCodec``).
     """
     n, _, s_h, s_w = x.shape
     hh, ww = native_hw
-    # colour transforms and resizes are linear, so convert at the model size and resize
-    # each plane straight to its coded size (luma full, chroma half): same result, cheaper
-    r, g, b = x[:, 0], x[:, 1], x[:, 2]
-    lum = 0.299 * r + 0.587 * g + 0.114 * b - 128
-    cb = -0.168736 * r - 0.331264 * g + 0.5 * b
-    cr = 0.5 * r - 0.418688 * g - 0.081312 * b
     q_l, q_c = quant_tables(quality)
-    lum = F.interpolate(lum[:, None], size=(hh, ww), mode="bilinear", align_corners=False)
-    chroma = F.interpolate(
-        torch.stack([cb, cr], 1), size=(hh // 2, ww // 2), mode="bilinear", align_corners=False
-    )
-    lum = _block_quantise(lum[:, 0], q_l)[:, None]
-    chroma = _block_quantise(chroma.reshape(n * 2, hh // 2, ww // 2), q_c)
-    lum = F.adaptive_avg_pool2d(lum, (s_h, s_w))[:, 0] + 128
-    chroma = F.adaptive_avg_pool2d(chroma.reshape(n, 2, hh // 2, ww // 2), (s_h, s_w))
-    cb, cr = chroma[:, 0], chroma[:, 1]
-    rgb = torch.stack([lum + 1.402 * cr, lum - 0.344136 * cb - 0.714136 * cr, lum + 1.772 * cb], 1)
-    return rgb.clamp(0.0, 255.0)
+    luma = _plane_codec((s_h, s_w), (hh, ww), tuple(map(tuple, q_l.tolist())))
+    chroma = _plane_codec((s_h, s_w), (hh // 2, ww // 2), tuple(map(tuple, q_c.tolist())))
+    ycc = torch.matmul(_RGB_TO_YCC, x.flatten(2)).unflatten(2, (s_h, s_w))  # JFIF
+    lum = luma(ycc[:, 0] - 128) + 128
+    chroma = chroma(ycc[:, 1:].flatten(0, 1)).unflatten(0, (n, 2))
+    rgb = torch.matmul(_YCC_TO_RGB, torch.cat([lum[:, None], chroma], 1).flatten(2))
+    return rgb.unflatten(2, (s_h, s_w)).clamp(0.0, 255.0)
 
 
 class StreamCompression(Effect):
@@ -244,7 +309,7 @@ class StreamCompression(Effect):
     params = (Param("quality", "1", 85.0, 10.0, 100.0, 100.0, _src, "JPEG quality (100 = off)"),)
     differentiable = ()
     native_hw = (320, 240)
-    chunk = 64
+    chunk = 16  # images per pass: the 320 x 240 coefficients then stay in cache
 
     def _apply(
         self,
@@ -255,4 +320,4 @@ class StreamCompression(Effect):
     ) -> torch.Tensor:
         q = scalar(p["quality"])
         parts = [jpeg_approx(c, q, self.native_hw) for c in x.split(self.chunk)]
-        return torch.cat(parts) if parts else x
+        return torch.cat(parts) if len(parts) > 1 else parts[0] if parts else x

@@ -28,6 +28,7 @@ from tactile_bench.effects.base import (
     Param,
     ParamValue,
     as_tensor,
+    per_sub_batch,
     pixel_grid,
     scalar,
     surface_gradient,
@@ -119,10 +120,16 @@ def fitted_response_image(
     for _ in range(N_MAG):
         for hk in harms:
             f = tj if hk is None else tj * hk
-            out = out + f[:, None] * fields[k]
+            out = out.addcmul_(f[:, None], fields[k])  # in place: no (N, 3, H, W) temporaries
             k += 1
         tj = tj * t
     return out
+
+
+def _real_response(height: torch.Tensor, ctx: EffectContext) -> torch.Tensor:
+    gx, gy = surface_gradient(height, ctx)
+    contact = (height / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
+    return fitted_response_image(gx[:, 0], gy[:, 0], contact[:, 0])
 
 
 class OpticalResponse(Effect):
@@ -148,10 +155,9 @@ class OpticalResponse(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> OpticalScene:
-        height = x.height
-        gx, gy = surface_gradient(height, ctx)
-        contact = (height / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
-        real = fitted_response_image(gx[:, 0], gy[:, 0], contact[:, 0])
+        real = per_sub_batch(lambda z: _real_response(z, ctx), x.height)
+        if not isinstance(p["blend"], torch.Tensor) and float(p["blend"]) == 1.0:
+            return x.replace(delta=real)  # the simulator's shading is replaced outright
         blend = as_tensor(p["blend"])
         return x.replace(delta=(1 - blend) * x.delta + blend * real)
 
@@ -185,12 +191,13 @@ class LedDiffusivity(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> OpticalScene:
-        g = torch.stack([as_tensor(p[k]) for k in ("gain_r", "gain_g", "gain_b")]).view(1, 3, 1, 1)
+        g = torch.stack([as_tensor(p[k]) for k in ("gain_r", "gain_g", "gain_b")])
         xt = as_tensor(p["crosstalk"])
         mix = (1 - xt) * torch.eye(3) + xt / 2 * (torch.ones(3, 3) - torch.eye(3))
-        delta = g * (1 - as_tensor(p["diffusion"])) * x.delta
-        delta = torch.einsum("ij,njhw->nihw", mix, delta)
-        return x.replace(background=x.background * g, delta=delta)
+        # gain, diffusion and crosstalk on the response as one 3 x 3 colour matrix
+        mix = mix * (g * (1 - as_tensor(p["diffusion"])))[None, :]
+        delta = torch.einsum("ij,njhw->nihw", mix, x.delta)
+        return x.replace(background=x.background * g.view(1, 3, 1, 1), delta=delta)
 
 
 class Shadows(Effect):
@@ -222,8 +229,17 @@ class Shadows(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> OpticalScene:
-        z = x.height
-        tan_el = torch.tan(torch.deg2rad(as_tensor(p["elevation_deg"])))
+        shadow = per_sub_batch(lambda z: self._shadow(z, p, ctx), x.height)  # (N, 3, H, W)
+        return x.replace(gain=x.gain * (1 - as_tensor(p["strength"]) * shadow))
+
+    def _shadow(
+        self, z: torch.Tensor, p: Mapping[str, ParamValue], ctx: EffectContext
+    ) -> torch.Tensor:
+        elevation = p["elevation_deg"]
+        if isinstance(elevation, torch.Tensor):
+            tan_el = torch.tan(torch.deg2rad(elevation.float()))
+        else:  # a float: keeps the ~30 steps below free of 0-d tensor ops
+            tan_el = math.tan(math.radians(elevation))
         reach = scalar(p["reach_mm"])
         dx, dy = ctx.mm_per_px(z)
         pad = math.ceil(reach / min(dx, dy)) + 1
@@ -232,16 +248,25 @@ class Shadows(Effect):
         masks = []
         for az in LED_AZIMUTH_DEG:
             a = math.radians(az)
-            occ = torch.full_like(z, -1e3)
+            sight = None  # highest rise of the surface above the line of sight to this LED
             for k in range(1, self.steps + 1):
                 t = reach * k / self.steps
                 i, j = round(t * math.sin(a) / dy), round(t * math.cos(a) / dx)
                 ahead = zp[..., pad + i : pad + i + h, pad + j : pad + j + w]
                 run = math.hypot(i * dy, j * dx)  # the distance actually sampled
-                occ = torch.maximum(occ, ahead - z - run * tan_el)
-            masks.append((occ / as_tensor(p["softness_mm"])).clamp(0.0, 1.0))
-        shadow = torch.cat(masks, 1)  # (N, 3, H, W)
-        return x.replace(gain=x.gain * (1 - as_tensor(p["strength"]) * shadow))
+                sight = _running_max(sight, ahead - run * tan_el)
+            masks.append(sight)
+        occ = torch.cat(masks, 1) - z
+        return (occ / as_tensor(p["softness_mm"])).clamp(0.0, 1.0)
+
+
+def _running_max(acc: torch.Tensor | None, x: torch.Tensor) -> torch.Tensor:
+    """max(acc, x); into ``acc`` in place when autograd is not recording (no new tensor)."""
+    if acc is None:
+        return x
+    if acc.requires_grad or x.requires_grad:
+        return torch.maximum(acc, x)
+    return torch.maximum(acc, x, out=acc)
 
 
 class UnitBackground(Effect):
@@ -320,35 +345,55 @@ class GelWear(Effect):
         ctx: EffectContext,
     ) -> OpticalScene:
         h, w = x.delta.shape[-2:]
-        g = torch.Generator().manual_seed(int(scalar(p["unit_seed"])))
-        uu, vv = pixel_grid(h, w)
-        xm, ym = uu * ctx.width_mm / 2, vv * ctx.height_mm / 2
-        half = torch.tensor([ctx.width_mm / 2, ctx.height_mm / 2])
-        area_cm2 = ctx.width_mm * ctx.height_mm / 100.0
-        n_dust = round(scalar(p["dust_per_cm2"]) * area_cm2)
-        log_t = torch.zeros(h, w)
-        if n_dust:
-            c = (torch.rand(n_dust, 2, generator=g) * 2 - 1) * half
-            s = scalar(p["dust_size_mm"]) * (0.5 + torch.rand(n_dust, generator=g))
-            r2 = (xm - c[:, :1, None]) ** 2 + (ym - c[:, 1:, None]) ** 2
-            spot = torch.exp(-0.5 * r2 / s[:, None, None] ** 2)
-            opacity = as_tensor(p["dust_opacity"]).clamp(max=0.999)
-            log_t = log_t + torch.log1p(-opacity * spot).sum(0)
-        n_scr = int(round(scalar(p["scratches"])))
-        if n_scr:
-            a = (torch.rand(n_scr, 2, generator=g) * 2 - 1) * half
-            ang = torch.rand(n_scr, generator=g) * math.pi
-            length = 2.0 + 6.0 * torch.rand(n_scr, generator=g)
-            d = torch.stack([torch.cos(ang), torch.sin(ang)], 1)
-            rel_x, rel_y = xm - a[:, :1, None], ym - a[:, 1:, None]
-            along = (rel_x * d[:, :1, None] + rel_y * d[:, 1:, None]).clamp(0.0, None)
-            along = torch.minimum(along, length[:, None, None])
-            dist2 = (rel_x - along * d[:, :1, None]) ** 2 + (rel_y - along * d[:, 1:, None]) ** 2
-            line = torch.exp(-0.5 * dist2 / 0.03**2)
-            log_t = log_t + torch.log1p(
-                -as_tensor(p["scratch_opacity"]).clamp(max=0.999) * line
-            ).sum(0)
-        centre = (torch.rand(2, generator=g) - 0.5) * 2.0  # worn patch within 1 mm of centre
-        worn = torch.exp(-0.5 * ((xm - centre[0]) ** 2 + (ym - centre[1]) ** 2) / 4.0**2)
-        response = 1 - as_tensor(p["coating_wear"]) * worn
-        return x.replace(gain=x.gain * torch.exp(log_t), delta=x.delta * response)
+        fitted = any(isinstance(v, torch.Tensor) and v.requires_grad for v in p.values())
+        if fitted:
+            transmission, response = _wear_fields(h, w, ctx.width_mm, ctx.height_mm, p)
+        else:  # a unit's wear is fixed: compute it once per size and parameter set
+            key = tuple((k, scalar(v)) for k, v in sorted(p.items()))
+            transmission, response = _cached_wear_fields(h, w, ctx.width_mm, ctx.height_mm, key)
+        return x.replace(gain=x.gain * transmission, delta=x.delta * response)
+
+
+@lru_cache(maxsize=8)
+def _cached_wear_fields(
+    h: int, w: int, width_mm: float, height_mm: float, key: tuple[tuple[str, float], ...]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    return _wear_fields(h, w, width_mm, height_mm, dict(key))
+
+
+def _wear_fields(
+    h: int, w: int, width_mm: float, height_mm: float, p: Mapping[str, ParamValue]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(transmission, response), each (H, W): light let through by dust and scratches, and
+    the worn coating's share of the contact response; drawn from ``unit_seed``."""
+    ctx = EffectContext(width_mm, height_mm)
+    g = torch.Generator().manual_seed(int(scalar(p["unit_seed"])))
+    uu, vv = pixel_grid(h, w)
+    xm, ym = uu * ctx.width_mm / 2, vv * ctx.height_mm / 2
+    half = torch.tensor([ctx.width_mm / 2, ctx.height_mm / 2])
+    area_cm2 = ctx.width_mm * ctx.height_mm / 100.0
+    n_dust = round(scalar(p["dust_per_cm2"]) * area_cm2)
+    log_t = torch.zeros(h, w)
+    if n_dust:
+        c = (torch.rand(n_dust, 2, generator=g) * 2 - 1) * half
+        s = scalar(p["dust_size_mm"]) * (0.5 + torch.rand(n_dust, generator=g))
+        r2 = (xm - c[:, :1, None]) ** 2 + (ym - c[:, 1:, None]) ** 2
+        spot = torch.exp(-0.5 * r2 / s[:, None, None] ** 2)
+        opacity = as_tensor(p["dust_opacity"]).clamp(max=0.999)
+        log_t = log_t + torch.log1p(-opacity * spot).sum(0)
+    n_scr = int(round(scalar(p["scratches"])))
+    if n_scr:
+        a = (torch.rand(n_scr, 2, generator=g) * 2 - 1) * half
+        ang = torch.rand(n_scr, generator=g) * math.pi
+        length = 2.0 + 6.0 * torch.rand(n_scr, generator=g)
+        d = torch.stack([torch.cos(ang), torch.sin(ang)], 1)
+        rel_x, rel_y = xm - a[:, :1, None], ym - a[:, 1:, None]
+        along = (rel_x * d[:, :1, None] + rel_y * d[:, 1:, None]).clamp(0.0, None)
+        along = torch.minimum(along, length[:, None, None])
+        dist2 = (rel_x - along * d[:, :1, None]) ** 2 + (rel_y - along * d[:, 1:, None]) ** 2
+        line = torch.exp(-0.5 * dist2 / 0.03**2)
+        log_t = log_t + torch.log1p(-as_tensor(p["scratch_opacity"]).clamp(max=0.999) * line).sum(0)
+    centre = (torch.rand(2, generator=g) - 0.5) * 2.0  # worn patch within 1 mm of centre
+    worn = torch.exp(-0.5 * ((xm - centre[0]) ** 2 + (ym - centre[1]) ** 2) / 4.0**2)
+    response = 1 - as_tensor(p["coating_wear"]) * worn
+    return torch.exp(log_t), response

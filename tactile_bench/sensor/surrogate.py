@@ -218,7 +218,9 @@ class SurrogateDigit:
         h = self._apply_stage("geometry", height.float(), generator, ctx)
         surface = _resize(h.clamp(min=0.0), gel.size)
         bg = digit_background(gel.size, self.unit)
-        scene = new_scene(surface, bg, self._sim_delta(surface, bg, gel))
+        # skipped when optical_response replaces it outright (it would be multiplied by 0)
+        delta = None if self._sim_shading_replaced() else self._sim_delta(surface, bg, gel)
+        scene = new_scene(surface, bg, delta)
         scene = self._apply_stage("optics", scene, generator, ctx)
         image = scene.composite()
         if image.shape[0] != surface.shape[0]:
@@ -227,6 +229,15 @@ class SurrogateDigit:
         return image.clamp(0.0, 255.0)
 
     render_depth_image = render_surface
+
+    def _sim_shading_replaced(self) -> bool:
+        """True when optical_response is on at blend 1 and not being fitted."""
+        if "optical_response" not in self._effects:
+            return False
+        blend = self.params("optical_response")["blend"]
+        if isinstance(blend, torch.Tensor):
+            return not blend.requires_grad and bool((blend == 1).all())
+        return float(blend) == 1.0
 
     @staticmethod
     def _sim_delta(surface: torch.Tensor, background: torch.Tensor, gel: GelSpec) -> torch.Tensor:
