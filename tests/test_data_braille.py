@@ -52,7 +52,7 @@ def sets(bank) -> dict[str, BrailleSet]:
 
 
 def _build(bank: HeightFieldBank, seed: int, **kw) -> dict[str, BrailleSet]:
-    kw = {"n_finetune": 12, "n_test": 7, **kw}
+    kw = {"n_finetune": 12, "n_test": 7, "n_classifier_test": 10, **kw}
     bg = torch.full((3, GEL.size, GEL.size), 128.0)
     return build_braille_sets(
         bank, GEL, SimOptics(), bg, BlurrySensor(), seed=seed, chars=CHARS, progress=False, **kw
@@ -64,7 +64,8 @@ def _rows(poses: Poses) -> set[tuple]:
 
 
 def test_builder_sizes_and_stratification(sets) -> None:
-    assert {k: len(v) for k, v in sets.items()} == {"finetune": 12, "test": 7, "classifier": 1188}
+    sizes = {k: len(v) for k, v in sets.items()}
+    assert sizes == {"finetune": 12, "test": 7, "classifier": 1188, "classifier_test": 10}
     assert torch.bincount(sets["finetune"].labels).tolist() == [4, 4, 4]
     counts = torch.bincount(sets["test"].labels, minlength=3)
     assert counts.sum() == 7 and counts.max() - counts.min() <= 1
@@ -135,3 +136,13 @@ def test_corrupt_or_missing_file_is_a_one_line_error(sets, tmp_path) -> None:
     for path in (truncated, garbage, tmp_path / "missing.npz"):
         with pytest.raises(TactileBenchError, match=path.name):
             BrailleSet.load(path)
+
+
+def test_classifier_test_contacts_are_upright_and_off_grid(sets) -> None:
+    test, grid = sets["classifier_test"].poses, sets["classifier"].poses
+    counts = torch.bincount(test.labels, minlength=3)
+    assert counts.sum() == 10 and counts.max() - counts.min() <= 1
+    assert test.x_mm.abs().max() <= 3.0 and test.y_mm.abs().max() <= 3.0
+    assert test.yaw_deg.abs().max() <= 25.0
+    assert test.press_mm.min() >= 0.3 and test.press_mm.max() <= 0.9
+    assert not _rows(test) & _rows(grid)

@@ -20,7 +20,12 @@ from tqdm.auto import tqdm
 
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
-from tactile_bench.geometry.contacts import Poses, classifier_protocol, finetune_test_protocol
+from tactile_bench.geometry.contacts import (
+    Poses,
+    classifier_protocol,
+    classifier_test_protocol,
+    finetune_test_protocol,
+)
 from tactile_bench.io import atomic_write_npz, load_npz
 from tactile_bench.sensor.depth import GelSpec, render_height, to_depth
 from tactile_bench.sensor.heightfield import HeightFieldBank
@@ -215,29 +220,43 @@ def build_braille_sets(
     n_test: int = 837,
     progress: bool = True,
     chunk: int = 512,
+    n_classifier: int | None = None,
+    n_classifier_test: int = 837,
 ) -> dict[str, BrailleSet]:
-    """The paper's three sets: ``finetune`` and ``test`` and ``classifier``.
+    """The paper's sets: ``finetune``, ``test``, ``classifier`` and ``classifier_test``.
 
     ``finetune`` and ``test`` are disjoint draws, stratified per character, from the
     fine-tune/test grid (180 contacts a character); ``classifier`` is the whole classifier
-    grid (396 a character). Each set's selection, sim noise and real-sensor randomness come
-    from its own stream spawned from ``seed``, so one set does not shift when another's size
-    changes.
+    grid (396 a character), or a stratified draw of ``n_classifier`` from it for quick runs;
+    ``classifier_test`` (``n_classifier_test``) are off-grid upright contacts on which the
+    classifiers are tested (see ``classifier_test_protocol``). Each set's selection, sim
+    noise and real-sensor randomness come from its own stream spawned from ``seed``, so one
+    set does not shift when another's size changes.
     """
     chars = tuple(chars)
     if tuple(bank.chars) != chars:
         raise TactileBenchError(
             f"build_braille_sets: bank holds {''.join(bank.chars)!r}, asked for {''.join(chars)!r}"
         )
-    select, *streams = np.random.SeedSequence(seed).spawn(7)
+    select, *streams = np.random.SeedSequence(seed).spawn(9)
     grid = finetune_test_protocol(chars)
     ft_idx, te_idx = draw_disjoint(
         grid.labels, (n_finetune, n_test), len(chars), int(select.generate_state(1)[0])
     )
+    classifier_grid = classifier_protocol(chars)
+    if n_classifier is not None and n_classifier < len(classifier_grid):
+        (cl_idx,) = draw_disjoint(
+            classifier_grid.labels, (n_classifier,), len(chars),
+            int(select.generate_state(2)[1]),
+        )
+        classifier_grid = classifier_grid.index(cl_idx)
     poses = {
         "finetune": grid.index(ft_idx),
         "test": grid.index(te_idx),
-        "classifier": classifier_protocol(chars),
+        "classifier": classifier_grid,
+        "classifier_test": classifier_test_protocol(
+            chars, n_classifier_test, int(select.generate_state(3)[2])
+        ),
     }
     sim_bg = _to_uint8(torch.as_tensor(sim_background))
     real_bg = _to_uint8(real_sensor.background(gel.size))

@@ -102,3 +102,20 @@ class ForegroundDataModule(L.LightningDataModule):
 
     def test_dataloader(self) -> DataLoader:
         return self._eval_loader(self.test_set)
+
+
+def stratified_subset(labels: torch.Tensor, fraction: float, seed: int) -> torch.Tensor:
+    """Sorted indices of ``fraction`` of each class (at least one), chosen by ``seed``.
+
+    The paper's "x% of the real fine-tuning data": every consumer (translator fine-tuning,
+    classifier fine-tuning) that asks with the same seed gets the same subset.
+    """
+    if not 0.0 < fraction <= 1.0:
+        raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+    g = torch.Generator().manual_seed(seed)
+    keep = []
+    for c in torch.unique(labels):
+        idx = torch.nonzero(labels == c).flatten()
+        idx = idx[torch.randperm(idx.numel(), generator=g)]
+        keep.append(idx[: max(1, int(round(fraction * idx.numel())))])
+    return torch.cat(keep).sort().values

@@ -99,3 +99,38 @@ def classifier_protocol(
 ) -> Poses:
     """The classifier grid: 3 x 3 XY at +-3 mm, 4 depths, yaw -25..25 step 5 (396 a char)."""
     return grid_protocol(chars, (-3.0, 0.0, 3.0), press_mm, CLASSIFIER_YAWS_DEG)
+
+
+def classifier_test_protocol(
+    chars: Sequence[str] = CHARACTERS,
+    n: int = 837,
+    seed: int = 0,
+    press_mm: Sequence[float] = PRESS_DEPTHS_MM,
+) -> Poses:
+    """Test contacts for the classifiers: the sensor upright as in the classifier protocol,
+    but off the grid (uniform in +-3 mm XY and +-25 deg yaw, depth within the grid's range).
+
+    The original code tests its classifiers on a separately collected real set, not on the
+    fine-tuning grid (whose +-45 and +-90 deg yaws a classifier trained on +-25 deg has never
+    seen); drawing off-grid poses keeps test contacts distinct from every training contact.
+    ``n`` is spread over the characters as evenly as possible.
+    """
+    known = set(CHARACTERS)
+    bad = [c for c in chars if c not in known]
+    if bad:
+        raise TactileBenchError(f"unknown braille characters {bad}")
+    gen = torch.Generator().manual_seed(seed)
+    k = len(chars)
+    labels = torch.arange(n) % k
+    labels = labels[torch.randperm(n, generator=gen)].sort().values
+
+    def uniform(low: float, high: float) -> torch.Tensor:
+        return low + (high - low) * torch.rand(n, generator=gen)
+
+    return Poses(
+        labels=labels.to(torch.int64),
+        x_mm=uniform(-3.0, 3.0),
+        y_mm=uniform(-3.0, 3.0),
+        yaw_deg=uniform(min(CLASSIFIER_YAWS_DEG), max(CLASSIFIER_YAWS_DEG)),
+        press_mm=uniform(min(press_mm), max(press_mm)),
+    )
