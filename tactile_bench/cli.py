@@ -95,6 +95,49 @@ def _cmd_list(ns: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_render(ns: argparse.Namespace) -> int:
+    from tactile_bench.geometry.braille import CHARACTERS
+    from tactile_bench.geometry.objects import OBJECTS
+    from tactile_bench.report.contact_sheet import render_contact_sheet
+
+    bad = [c for c in ns.chars if c not in CHARACTERS]
+    if bad:
+        raise TactileBenchError(f"--chars: not braille characters of the paper: {bad}")
+    unknown = [o for o in ns.objects if o not in OBJECTS]
+    if unknown:
+        raise TactileBenchError(f"--objects: unknown {unknown}; known: {', '.join(OBJECTS)}")
+    path = render_contact_sheet(ns.chars, ns.objects, ns.profile, ns.out, ns.seed)
+    print(f"wrote {path}")
+    return 0
+
+
+def _cmd_data(ns: argparse.Namespace) -> int:
+    import time
+
+    from tactile_bench.data.ycb_slide import StandinConfig, build_ycb_slide_standin
+    from tactile_bench.geometry.objects import OBJECTS
+    from tactile_bench.sensor.surrogate import SurrogateDigit
+
+    objects = tuple(ns.objects or OBJECTS)
+    pairs = ns.pairs if ns.pairs is not None else StandinConfig().n_pairs
+    config = StandinConfig(n_pairs=pairs, seed=ns.seed, objects=objects)
+    start = time.perf_counter()
+    manifest = build_ycb_slide_standin(
+        ns.out,
+        config=config,
+        real_sensor=SurrogateDigit.from_profile(ns.profile),
+        progress=not ns.no_progress,
+    )
+    wall = time.perf_counter() - start
+    n = manifest["n_train"] + manifest["n_test"]
+    print(
+        f"wrote {ns.out}: {manifest['n_train']} train + {manifest['n_test']} test pairs "
+        f"(split by trajectory), {manifest.get('frames_dropped', 0)} frames dropped; "
+        f"{wall:.1f} s, {n / wall:.1f} pairs/s"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser, with a subcommand per job."""
     parser = argparse.ArgumentParser(
@@ -124,10 +167,47 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--no-progress", action="store_true", help="no progress bars")
     fit.set_defaults(func=_cmd_fit)
 
+    render = sub.add_parser(
+        "render", help="contact sheet: depth | sim | each surrogate effect alone | all effects"
+    )
+    render.add_argument("--chars", nargs="*", default=["A", "B", "#"], help="braille characters")
+    render.add_argument(
+        "--objects",
+        nargs="*",
+        default=["004_sugar_box"],
+        help="pretraining objects (see `list`), one sliding frame each",
+    )
+    render.add_argument("--profile", default="digit", help="surrogate profile name or YAML path")
+    render.add_argument("--out", default="contact_sheet.png", help="PNG to write")
+    render.add_argument("--seed", type=int, default=0)
+    render.set_defaults(func=_cmd_render)
+
+    data = sub.add_parser("data", help="build a dataset on its own (outside a recipe)")
+    data_sub = data.add_subparsers(dest="dataset", required=True)
+    ycb = data_sub.add_parser("ycb-slide", help="the YCB-Slide stand-in pretraining corpus")
+    ycb.add_argument("--pairs", type=int, default=None, help="number of (depth, real) pairs")
+    ycb.add_argument("--out", default="data/ycb_slide_standin", help="output directory")
+    ycb.add_argument("--objects", nargs="*", help="subset of objects (default: all ten)")
+    ycb.add_argument("--profile", default="digit", help="surrogate profile playing 'real'")
+    ycb.add_argument("--seed", type=int, default=0)
+    ycb.add_argument("--no-progress", action="store_true")
+    ycb.set_defaults(func=_cmd_data)
+
     lst = sub.add_parser("list", help="list translators, effects, recipes and stage kinds")
     lst.add_argument("what", nargs="?", choices=sorted(LISTINGS), help="only this listing")
     lst.set_defaults(func=_cmd_list)
     return parser
+
+
+def _configure_logging(level: int) -> None:
+    """Our own messages on stderr; Lightning keeps its own handler (no duplicated lines)."""
+    logger = logging.getLogger("tactile_bench")
+    logger.setLevel(level)
+    if not logger.handlers:
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        logger.addHandler(handler)
+        logger.propagate = False
 
 
 def main(args: list[str] | None = None) -> int:
@@ -138,10 +218,7 @@ def main(args: list[str] | None = None) -> int:
         ns = parser.parse_args(args)
     except SystemExit as exc:  # --help or a usage error: argparse already printed
         return int(exc.code or 0)
-    logging.basicConfig(
-        level=logging.DEBUG if ns.verbose else logging.INFO,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
+    _configure_logging(logging.DEBUG if ns.verbose else logging.INFO)
     try:
         return ns.func(ns)
     except TactileBenchError as exc:

@@ -24,6 +24,9 @@ def test_smoke_recipe_end_to_end(
     for metric in ("accuracy", "precision", "recall"):
         assert 0.0 <= row[metric]["mean"] <= 1.0
     assert row["extra"]["n_test"] == 60
+    assert 0.0 <= row["sim_accuracy"]["mean"] <= 1.0
+    ablation = (run_dir / "ablation.md").read_text()
+    assert "optical_response" in ablation and "all effects off" in ablation
     assert (run_dir / "results.md").read_text() in out  # the table is printed
     assert list(run_dir.glob("braille-*/preview.png"))
 

@@ -100,6 +100,7 @@ def train_classifier(
     val: tuple[torch.Tensor, torch.Tensor] | None = None,
     num_classes: int = NUM_CLASSES,
     close_loggers: bool = True,
+    init: BrailleClassifier | None = None,
 ) -> BrailleClassifier:
     """Fit a :class:`BrailleClassifier` on foregrounds (N, C, S, S) and labels (N,).
 
@@ -107,7 +108,8 @@ def train_classifier(
     number of threads. Writes ``out_dir/checkpoints/last.ckpt``; logs to ``loggers``
     (default: a CSVLogger in ``out_dir``). ``trainer_kwargs`` override the Trainer's
     arguments (e.g. ``limit_train_batches``, ``accelerator``, ``enable_progress_bar``).
-    Returns the model after the last epoch, in eval mode, on the CPU.
+    Returns the model after the last epoch, in eval mode, on the CPU. With ``init`` the
+    weights start from that model (fine-tuning, e.g. on a fraction of real data).
     """
     config = config or ClassifierConfig()
     out_dir = Path(out_dir)
@@ -132,6 +134,8 @@ def train_classifier(
         augment=config.augment,
         shift_px=config.shift_px,
     )
+    if init is not None:
+        model.load_state_dict(init.state_dict())
     has_val = datamodule.val_set is not None
     steps_per_epoch = max(1, -(-len(datamodule.train_set) // config.batch_size))
     logger_list = list(loggers) if loggers is not None else [CSVLogger(str(out_dir), name="logs")]

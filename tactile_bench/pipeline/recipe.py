@@ -169,6 +169,10 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
         for slot, required in kind.input_slots.items():
             if required and slot not in inputs:
                 raise TactileBenchError(f"{where}.inputs.{slot}: required input missing")
+        if kind.exactly_one_of and sum(s in inputs for s in kind.exactly_one_of) != 1:
+            raise TactileBenchError(
+                f"{where}.inputs: connect exactly one of {list(kind.exactly_one_of)}"
+            )
         for slot, refs in inputs.items():
             for ref in refs:
                 if ref not in seen:

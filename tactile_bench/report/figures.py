@@ -23,7 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 
-def _save(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
+def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
     """Render ``fig`` to ``path`` via a temporary file in the same directory + os.replace."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -67,7 +67,7 @@ def confusion_png(
             if cm[i, j] > 0:
                 colour = "white" if norm[i, j] > 0.5 else "black"
                 ax.text(j, i, int(cm[i, j]), ha="center", va="center", fontsize=5, color=colour)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def per_class_bar_png(
@@ -90,7 +90,7 @@ def per_class_bar_png(
     mean = f" (mean {present.mean():.3f})" if present.size else ""
     ax.set_title(title + mean, fontsize=9)
     ax.grid(axis="y", alpha=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _to_display(images: torch.Tensor) -> tuple[np.ndarray, dict[str, Any]]:
@@ -146,4 +146,4 @@ def sample_grid_png(
                 ax.set_ylabel(row_labels[i], fontsize=8)
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)

@@ -66,6 +66,7 @@ class StageKind:
 
     ``run`` returns ``(outputs, metrics)``: outputs maps names to files it wrote
     in ``ctx.directory`` (hashed into the manifest); metrics are JSON figures.
+    ``exactly_one_of`` names input slots of which a recipe must connect exactly one.
     ``publish`` names outputs copied to the run directory's root (results, reports).
     ``check`` validates a config against the world (files, registries) before any
     work starts and raises TactileBenchError("key: problem").
@@ -77,4 +78,5 @@ class StageKind:
     run: Callable[[StageContext], tuple[dict[str, str], dict[str, Any]]]
     input_slots: dict[str, bool] = field(default_factory=dict)
     check: Callable[[Any, Path], None] = _no_check
+    exactly_one_of: tuple[str, ...] = ()
     publish: tuple[str, ...] = ()

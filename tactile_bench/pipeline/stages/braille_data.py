@@ -19,7 +19,7 @@ from tactile_bench.sensor.heightfield import build_bank
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
 
-SETS = ("finetune", "test", "classifier")
+SETS = ("finetune", "test", "classifier", "classifier_test")
 
 
 class BrailleDataConfig(StageConfig):
@@ -28,6 +28,8 @@ class BrailleDataConfig(StageConfig):
     chars: str = Field(default="".join(CHARACTERS), min_length=2)
     n_finetune: int = Field(default=1080, ge=1)
     n_test: int = Field(default=837, ge=1)
+    n_classifier: int | None = Field(default=None, ge=1, description="None: the whole grid")
+    n_classifier_test: int = Field(default=837, ge=1)
     real_sensor: str = "digit"
     image_size: int = Field(default=64, ge=16, le=256)
     oversample: int = Field(default=2, ge=1, le=8)
@@ -59,6 +61,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         chars=chars,
         n_finetune=config.n_finetune,
         n_test=config.n_test,
+        n_classifier=config.n_classifier,
+        n_classifier_test=config.n_classifier_test,
         progress=ctx.progress,
     )
     outputs = {}
@@ -79,7 +83,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         title="braille contacts: depth | sim | surrogate real",
     )
     outputs["preview"] = "preview.png"
-    return outputs, {name: len(sets[name]) for name in SETS}
+    return outputs, {"real_sensor": config.real_sensor, **{name: len(sets[name]) for name in SETS}}
 
 
 STAGE = StageKind(

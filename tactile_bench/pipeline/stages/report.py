@@ -26,6 +26,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
                 "accuracy": summary["accuracy"],
                 "precision": summary["precision"],
                 "recall": summary["recall"],
+                "sim_accuracy": summary["test_sim_accuracy"],
                 "extra": {
                     "stage": result.name,
                     "seeds": summary["seeds"],

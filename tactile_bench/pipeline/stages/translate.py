@@ -1,79 +1,79 @@
-"""Stage ``translate``: fit a registered translator on real pairs, then translate braille sets."""
+"""Stage ``translate``: turn braille depth into images with a translator, and score the test set.
+
+The translator is either a fitted one (input ``translator``, a ``fit_translator`` stage)
+or a fresh registered one named in the config (``sim``, ``lighting_aug``: nothing to fit).
+``translator_config`` on a fitted translator overrides inference settings only (e.g. the
+diffusion sampler and its number of steps).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
 import torch
 from pydantic import Field
 
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.io import atomic_write_npz
-from tactile_bench.pipeline.loggers import make_loggers
+from tactile_bench.io import atomic_write_json, atomic_write_npz
+from tactile_bench.metrics.image import ssim_mse
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.pipeline.stages.fit_translator import load_fitted
 from tactile_bench.translators import create_translator, translator_class
 
 
 class TranslateConfig(StageConfig):
-    """Which translator, how much of the real fine-tuning pool it fits on, what it translates."""
+    """Which translator (when none is fitted upstream), which sets, onto which background."""
 
-    translator: str = "sim"
+    translator: str | None = None
     translator_config: dict[str, Any] = {}
-    fit_fraction: float = Field(default=0.0, ge=0.0, le=1.0)
-    sets: list[Literal["finetune", "test", "classifier"]] = ["classifier"]
-    background: Literal["sim", "real"] = "sim"
-    batch_size: int = Field(default=512, ge=1)
+    sets: list[Literal["finetune", "test", "classifier"]] = ["classifier", "test"]
+    background: Literal["sim", "real"] = "real"
+    batch_size: int = Field(default=256, ge=1)
 
 
 def _check(config: TranslateConfig, base_dir: Path) -> None:
+    if config.translator is None:
+        return
     try:
-        cls = translator_class(config.translator)
-        cls.parse_config(config.translator_config)
+        translator_class(config.translator).parse_config(config.translator_config)
     except TactileBenchError as exc:
         raise TactileBenchError(f"translator: {exc}") from None
 
 
-def _fit_subset(pool: BrailleSet, fraction: float, seed: int) -> BrailleSet:
-    """A stratified fraction of the fine-tuning pool, the same for every translator."""
-    gen = torch.Generator().manual_seed(seed)
-    keep = []
-    for label in torch.unique(pool.labels):
-        idx = torch.nonzero(pool.labels == label).flatten()
-        idx = idx[torch.randperm(len(idx), generator=gen)]
-        keep.append(idx[: max(1, round(fraction * len(idx)))])
-    return pool.subset(torch.sort(torch.cat(keep)).values)
+def _translator(ctx: StageContext) -> Any:
+    config: TranslateConfig = ctx.config
+    fitted = load_fitted(ctx, "translator")
+    if fitted is None:
+        if config.translator is None:
+            raise TactileBenchError(f"stage {ctx.name}: name a translator or connect a fitted one")
+        return create_translator(config.translator, config.translator_config)
+    if config.translator not in (None, fitted.name):
+        raise TactileBenchError(
+            f"stage {ctx.name}: config names {config.translator!r} but the fitted translator "
+            f"is {fitted.name!r}"
+        )
+    if config.translator_config:
+        settings = fitted.config.model_dump() | config.translator_config
+        fitted.config = fitted.parse_config(settings)
+    return fitted
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: TranslateConfig = ctx.config
     data = ctx.input("data")
-    translator = create_translator(config.translator, config.translator_config)
-    metrics: dict[str, Any] = {"translator": config.translator}
-    if translator.trainable and config.fit_fraction > 0:
-        pairs = _fit_subset(BrailleSet.load(data.path("finetune")), config.fit_fraction, ctx.seed)
-        translator.fit_pairs(
-            pairs.depth,
-            pairs.foreground("real"),
-            ctx.directory,
-            ctx.trainer,
-            loggers=make_loggers(ctx.directory, f"{ctx.name}-{config.translator}"),
-        )
-        metrics["fit_pairs"] = len(pairs)
-    translator.save(ctx.directory / "translator.pt")
-    outputs = {"translator": "translator.pt"}
-    gen = torch.Generator().manual_seed(ctx.seed)
+    translator = _translator(ctx)
+    generator = torch.Generator().manual_seed(ctx.seed)
+    outputs: dict[str, str] = {}
+    metrics: dict[str, Any] = {"translator": translator.name}
     for name in config.sets:
         split = BrailleSet.load(data.path(name))
-        background = torch.from_numpy(
-            np.asarray(
-                split.sim_background if config.background == "sim" else split.real_background
-            )
+        background = (
+            split.sim_background if config.background == "sim" else split.real_background
         ).float()
         chunks = [
-            translator.translate(split.depth[i : i + config.batch_size], background, gen)
+            translator.translate(split.depth[i : i + config.batch_size], background, generator)
             for i in range(0, len(split), config.batch_size)
         ]
         images = torch.cat(chunks).round().clamp(0, 255).to(torch.uint8)
@@ -84,14 +84,18 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             labels=split.labels.numpy(),
         )
         outputs[name] = f"{name}.npz"
+        if name == "test":
+            metrics["test_similarity"] = ssim_mse(images.float(), split.real.float())
+    atomic_write_json(ctx.directory / "metrics.json", metrics)
+    outputs["metrics"] = "metrics.json"
     return outputs, metrics
 
 
 STAGE = StageKind(
     name="translate",
-    description="fit a translator on real pairs (optional) and translate braille depth to images",
+    description="translate braille depth into images; SSIM/MSE against real on the test set",
     config_model=TranslateConfig,
     run=_run,
-    input_slots={"data": True},
+    input_slots={"data": True, "translator": False},
     check=_check,
 )

@@ -1,0 +1,116 @@
+"""Stage ``fit_translator``: fit a registered translator on real pairs, optionally from a
+previous fit (pretrain on a corpus, then fine-tune on a fraction of the braille pool)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from pydantic import Field
+
+from tactile_bench.data.braille import BrailleSet
+from tactile_bench.data.datamodule import stratified_subset
+from tactile_bench.data.pairs import load_pairs
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.io import atomic_write_json
+from tactile_bench.metrics.image import ssim_mse
+from tactile_bench.pipeline.loggers import make_loggers
+from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.translators import Translator, create_translator, translator_class
+
+
+class FitTranslatorConfig(StageConfig):
+    """Which translator, its config, and which share of the braille fine-tuning pool it sees."""
+
+    translator: str
+    translator_config: dict[str, Any] = {}
+    fraction: float = Field(default=1.0, gt=0.0, le=1.0)
+    eval_pairs: int = Field(default=64, ge=0)
+
+
+def _check(config: FitTranslatorConfig, base_dir: Path) -> None:
+    try:
+        translator_class(config.translator).parse_config(config.translator_config)
+    except TactileBenchError as exc:
+        raise TactileBenchError(f"translator: {exc}") from None
+
+
+def load_fitted(ctx: StageContext, slot: str) -> Translator | None:
+    """The translator a ``fit_translator`` stage wrote, if ``slot`` is connected."""
+    result = ctx.optional_input(slot)
+    if result is None:
+        return None
+    kind = translator_class(result.metrics["translator"])
+    return kind.load(result.path("translator"))
+
+
+def _pairs(ctx: StageContext, fraction: float) -> tuple[Any, Any, Any, Any]:
+    """(train depth, train foreground, held-out depth, held-out real images) from the input."""
+    braille, corpus = ctx.optional_input("braille"), ctx.optional_input("corpus")
+    if braille is not None:
+        pool = BrailleSet.load(braille.path("finetune"))
+        pool = pool.subset(stratified_subset(pool.labels, fraction, ctx.seed))
+        test = BrailleSet.load(braille.path("test"))
+        return (
+            pool.depth,
+            pool.foreground("real"),
+            test.depth,
+            test.real,
+            test.real_background.float(),
+        )
+    train, test = load_pairs(corpus.directory, "train"), load_pairs(corpus.directory, "test")
+    return (
+        train.depth,
+        train.foreground("real"),
+        test.depth,
+        test.real,
+        test.real_background[test.real_bg_index].float(),
+    )
+
+
+def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+    config: FitTranslatorConfig = ctx.config
+    previous = load_fitted(ctx, "init")
+    translator = create_translator(config.translator, config.translator_config)
+    if previous is not None:
+        if type(previous) is not type(translator):
+            raise TactileBenchError(
+                f"stage {ctx.name}: init is a {previous.name!r} translator, not {translator.name!r}"
+            )
+        translator.load_state_dict(previous.state_dict())
+    depth, foreground, test_depth, test_real, test_bg = _pairs(ctx, config.fraction)
+    translator.fit_pairs(
+        depth,
+        foreground,
+        ctx.directory,
+        ctx.trainer,
+        loggers=make_loggers(ctx.directory, f"{ctx.name}-{config.translator}"),
+    )
+    translator.save(ctx.directory / "translator.pt")
+
+    metrics: dict[str, Any] = {
+        "translator": config.translator,
+        "fit_pairs": len(depth),
+        "initialised_from": ctx.inputs["init"][0].name if previous else None,
+    }
+    n = min(config.eval_pairs, len(test_depth))
+    if n:
+        idx = torch.randperm(len(test_depth), generator=torch.Generator().manual_seed(ctx.seed))[:n]
+        bg = test_bg if test_bg.dim() == 3 else test_bg[idx]
+        pred = translator.translate(test_depth[idx], bg, torch.Generator().manual_seed(ctx.seed))
+        metrics["heldout"] = {"n": n, **ssim_mse(pred, test_real[idx].float())}
+    atomic_write_json(ctx.directory / "metrics.json", metrics)
+    return {"translator": "translator.pt", "metrics": "metrics.json"}, metrics
+
+
+STAGE = StageKind(
+    name="fit_translator",
+    description="fit a translator on real pairs (braille pool fraction or a corpus), "
+    "optionally starting from an earlier fit",
+    config_model=FitTranslatorConfig,
+    run=_run,
+    input_slots={"braille": False, "corpus": False, "init": False},
+    exactly_one_of=("braille", "corpus"),
+    check=_check,
+)

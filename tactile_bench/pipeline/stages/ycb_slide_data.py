@@ -1,0 +1,58 @@
+"""Stage ``ycb_slide_data``: the pretraining corpus (a YCB-Slide stand-in) as sharded pairs."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import Field
+
+from tactile_bench.data.ycb_slide import DEFAULT_PAIRS, StandinConfig, build_ycb_slide_standin
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.geometry.objects import OBJECTS
+from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.sensor.depth import GelSpec
+from tactile_bench.sensor.surrogate import SurrogateDigit
+
+
+class YcbSlideConfig(StageConfig):
+    """How many pairs, over which objects, sensed by which surrogate unit."""
+
+    n_pairs: int = Field(default=DEFAULT_PAIRS, ge=10)
+    objects: list[str] = list(OBJECTS)
+    real_sensor: str = "digit"
+    image_size: int = Field(default=64, ge=16, le=256)
+
+
+def _check(config: YcbSlideConfig, base_dir: object) -> None:
+    unknown = [o for o in config.objects if o not in OBJECTS]
+    if unknown:
+        raise TactileBenchError(f"objects: unknown {unknown}; known: {', '.join(OBJECTS)}")
+    try:
+        SurrogateDigit.from_profile(config.real_sensor)
+    except TactileBenchError as exc:
+        raise TactileBenchError(f"real_sensor: {exc}") from None
+
+
+def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+    config: YcbSlideConfig = ctx.config
+    manifest = build_ycb_slide_standin(
+        ctx.directory,
+        config=StandinConfig(n_pairs=config.n_pairs, seed=ctx.seed, objects=tuple(config.objects)),
+        gel=GelSpec(size=config.image_size),
+        real_sensor=SurrogateDigit.from_profile(config.real_sensor),
+        progress=ctx.progress,
+    )
+    outputs = {"manifest": "manifest.json", "backgrounds": "backgrounds.npz"}
+    for shard in sorted((ctx.directory / "shards").glob("*.npz")):
+        outputs[f"shard_{shard.stem}"] = f"shards/{shard.name}"
+    counts = {k: manifest[k] for k in ("n_train", "n_test", "frames_dropped") if k in manifest}
+    return outputs, counts
+
+
+STAGE = StageKind(
+    name="ycb_slide_data",
+    description="build the YCB-Slide stand-in pretraining corpus (split by trajectory)",
+    config_model=YcbSlideConfig,
+    run=_run,
+    check=_check,
+)

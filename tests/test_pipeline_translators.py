@@ -1,0 +1,73 @@
+"""Pretrain on the corpus -> fine-tune on braille -> translate -> classify, through recipes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from tactile_bench.cli import main
+
+RECIPE = """
+name: chain
+stages:
+  - name: braille
+    kind: braille_data
+    config: {chars: AB, n_finetune: 20, n_test: 16, n_classifier: 40}
+  - name: corpus
+    kind: ycb_slide_data
+    config: {n_pairs: 30, objects: [005_tomato_soup_can]}
+  - name: pretrain
+    kind: fit_translator
+    inputs: {corpus: corpus}
+    config: {translator: colour_match, translator_config: {max_steps: 4, batch_size: 8}}
+  - name: finetune
+    kind: fit_translator
+    inputs: {braille: braille, init: pretrain}
+    config:
+      translator: colour_match
+      fraction: 0.5
+      translator_config: {max_steps: 4, batch_size: 8}
+  - name: translated
+    kind: translate
+    inputs: {data: braille, translator: finetune}
+  - name: classify
+    kind: classify
+    inputs: {data: braille, images: translated}
+    config: {row: diffusion, classifier: {width: 4, epochs: 1}}
+  - name: report
+    kind: report
+    inputs: {rows: [classify]}
+"""
+
+
+def test_pretrain_finetune_translate_classify(tmp_path: Path) -> None:
+    path = tmp_path / "chain.yaml"
+    path.write_text(RECIPE)
+    run_dir = tmp_path / "run"
+    assert main(["fit", str(path), "--run-dir", str(run_dir), "--no-progress"]) == 0
+    run = json.loads((run_dir / "run.json").read_text())
+    dirs = {s["name"]: run_dir / s["directory"] for s in run["stages"]}
+
+    pretrain = json.loads((dirs["pretrain"] / "metrics.json").read_text())
+    finetune = json.loads((dirs["finetune"] / "metrics.json").read_text())
+    assert pretrain["fit_pairs"] > 0 and pretrain["initialised_from"] is None
+    assert finetune["initialised_from"] == "pretrain"
+    assert finetune["fit_pairs"] == 10  # half of 20, stratified over two characters
+    assert 0.0 < finetune["heldout"]["ssim"] <= 1.0
+
+    translated = json.loads((dirs["translated"] / "metrics.json").read_text())
+    assert translated["translator"] == "colour_match"
+    assert translated["test_similarity"]["mse"] >= 0.0
+    (row,) = json.loads((run_dir / "results.json").read_text())["rows"]
+    assert row["row"] == "diffusion"
+
+
+def test_fit_needs_exactly_one_data_source(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(RECIPE.replace("inputs: {braille: braille, init: pretrain}", "inputs: {}"))
+    assert main(["fit", str(path), "--run-dir", str(tmp_path / "run")]) == 2
+    assert "exactly one of" in capsys.readouterr().err
