@@ -150,7 +150,9 @@ class Translator(L.LightningModule):
         except FileNotFoundError:
             raise TactileBenchError(f"{path}: translator checkpoint not found") from None
         except Exception as exc:  # corrupt or foreign file: one line, not a traceback
-            raise TactileBenchError(f"{path}: not a readable translator checkpoint ({exc})") from None
+            raise TactileBenchError(
+                f"{path}: not a readable translator checkpoint ({exc})"
+            ) from None
         if not isinstance(payload, dict) or "translator" not in payload:
             raise TactileBenchError(f"{path}: not a tactile_bench translator checkpoint")
         if payload["translator"] != cls.name:

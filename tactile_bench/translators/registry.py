@@ -71,6 +71,8 @@ def translator_class(name: str) -> type[Translator]:
     return registry[name].load()
 
 
-def create_translator(name: str, config: TranslatorConfig | dict[str, Any] | None = None) -> Translator:
+def create_translator(
+    name: str, config: TranslatorConfig | dict[str, Any] | None = None
+) -> Translator:
     """Construct a registered translator from its (validated) config."""
     return translator_class(name)(config)

@@ -32,7 +32,9 @@ class SimTranslator(Translator):
         self.optics = SimOptics()
 
     def _generator(self, generator: torch.Generator | None) -> torch.Generator:
-        return generator if generator is not None else torch.Generator().manual_seed(self.config.seed)
+        return (
+            generator if generator is not None else torch.Generator().manual_seed(self.config.seed)
+        )
 
     def translate_foreground(
         self, depth: torch.Tensor, generator: torch.Generator | None = None
