@@ -138,6 +138,53 @@ def _cmd_data(ns: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_ground(ns: argparse.Namespace) -> int:
+    import json
+
+    from tactile_bench.sensor.grounding import default_real_dir, grounding_report
+
+    real_dir = Path(ns.real_dir) if ns.real_dir else default_real_dir()
+    if real_dir is None or not real_dir.is_dir():
+        raise TactileBenchError(
+            f"{ns.real_dir or '../shared/real'}: no folder of real DIGIT measurements "
+            "(digit_background_240x320.jpg, digit_polycalib.npz); pass --real-dir"
+        )
+    report = grounding_report(real_dir)
+    if ns.json:
+        print(json.dumps(report, indent=2, default=float))
+        return 0
+    print(f"surrogate DIGIT against real measurements in {real_dir}")
+
+    def rgb(values: list[float]) -> str:
+        return " / ".join(f"{v:.1f}" for v in values)
+
+    for key, label in (("background", "digit"), ("background_digit_b", "digit-b")):
+        b = report[key]
+        if b is None:
+            print(f"  background ({label}): reference frame absent")
+            continue
+        print(
+            f"  background ({label}): mean RGB {rgb(b['surrogate_mean'])} vs real "
+            f"{rgb(b['real_mean'])}; std {rgb(b['surrogate_std'])} vs {rgb(b['real_std'])}; "
+            f"RMSE {b['rmse']:.2f}, low-frequency RMSE {b['lowfreq_rmse']:.2f} (0-255)"
+        )
+    fit, ours = report["optical_response"], report["surrogate_response"]
+    if fit is None:
+        print("  optical response: calibration absent")
+    else:
+        print(
+            f"  optical response (fitted model vs calibration): MAE {fit['mae']:.2f} "
+            f"(below 60 deg {fit['mae_below_60deg']:.2f}; per channel "
+            f"{rgb(fit['mae_per_channel'])}) of a mean |response| {fit['table_mean_abs']:.1f}, "
+            f"relative {fit['relative_error']:.3f}, {fit['n_numbers_embedded']} numbers"
+        )
+        print(
+            f"  optical response (surrogate's own torch code vs calibration): MAE "
+            f"{ours['mae']:.2f} (below 60 deg {ours['mae_below_60deg']:.2f})"
+        )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser, with a subcommand per job."""
     parser = argparse.ArgumentParser(
@@ -192,6 +239,13 @@ def build_parser() -> argparse.ArgumentParser:
     ycb.add_argument("--seed", type=int, default=0)
     ycb.add_argument("--no-progress", action="store_true")
     ycb.set_defaults(func=_cmd_data)
+
+    ground = sub.add_parser(
+        "ground", help="compare the surrogate with real DIGIT measurements (background, optics)"
+    )
+    ground.add_argument("--real-dir", help="folder with the reference files (default: found)")
+    ground.add_argument("--json", action="store_true", help="print every number as JSON")
+    ground.set_defaults(func=_cmd_ground)
 
     lst = sub.add_parser("list", help="list translators, effects, recipes and stage kinds")
     lst.add_argument("what", nargs="?", choices=sorted(LISTINGS), help="only this listing")

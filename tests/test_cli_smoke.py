@@ -48,3 +48,22 @@ def test_help(capsys: pytest.CaptureFixture[str]) -> None:
     assert "fit" in capsys.readouterr().out
     assert main(["fit", "--help"]) == 0
     assert "--force" in capsys.readouterr().out
+
+
+def test_render_contact_sheet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "sheet.png"
+    assert main(["render", "--chars", "A", "#", "--objects", "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["render", "--chars", "a"]) == 2
+    assert "--chars" in capsys.readouterr().err
+
+
+def test_ground_against_real_measurements(capsys: pytest.CaptureFixture[str]) -> None:
+    from tactile_bench.sensor.grounding import default_real_dir
+
+    if default_real_dir() is None:
+        pytest.skip("no ../shared/real reference folder on this machine")
+    assert main(["ground"]) == 0
+    out = capsys.readouterr().out
+    assert "background (digit)" in out and "optical response" in out
+    assert main(["ground", "--real-dir", "/nonexistent"]) == 2

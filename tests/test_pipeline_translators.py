@@ -71,3 +71,38 @@ def test_fit_needs_exactly_one_data_source(
     path.write_text(RECIPE.replace("inputs: {braille: braille, init: pretrain}", "inputs: {}"))
     assert main(["fit", str(path), "--run-dir", str(tmp_path / "run")]) == 2
     assert "exactly one of" in capsys.readouterr().err
+
+
+def test_recipe_trains_on_a_real_ycb_slide_folder(tmp_path: Path) -> None:
+    """The same stage reads the original YCB-Slide layout when its source is a path."""
+    from data.make_layouts import make_ycb_slide_real
+
+    make_ycb_slide_real(tmp_path / "ycb", "004_sugar_box", n_frames=6, datasets=2)
+    recipe = tmp_path / "real_corpus.yaml"
+    recipe.write_text(
+        "name: real_corpus\nstages:\n"
+        "  - {name: corpus, kind: ycb_slide_data, config: {source: ycb}}\n"
+        "  - name: pretrain\n    kind: fit_translator\n    inputs: {corpus: corpus}\n"
+        "    config: {translator: colour_match, translator_config: {max_steps: 3, batch_size: 4}}\n"
+    )
+    run_dir = tmp_path / "run"
+    assert main(["fit", str(recipe), "--run-dir", str(run_dir), "--no-progress"]) == 0
+    run = json.loads((run_dir / "run.json").read_text())
+    corpus_dir = run_dir / run["stages"][0]["directory"]
+    manifest = json.loads((corpus_dir / "manifest.json").read_text())
+    assert manifest["n_train"] > 0 and manifest["n_test"] > 0  # one recording each
+    splits = {s["trajectory"]: s["split"] for s in manifest["shards"]}
+    assert sorted(splits.values()) == ["test", "train"]
+    metrics = json.loads((run_dir / run["stages"][1]["directory"] / "metrics.json").read_text())
+    assert metrics["fit_pairs"] == manifest["n_train"]
+
+
+def test_missing_real_folder_is_a_recipe_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recipe = tmp_path / "r.yaml"
+    recipe.write_text(
+        "name: r\nstages:\n  - {name: corpus, kind: ycb_slide_data, config: {source: nowhere}}\n"
+    )
+    assert main(["fit", str(recipe), "--run-dir", str(tmp_path / "run")]) == 2
+    assert "nowhere" in capsys.readouterr().err

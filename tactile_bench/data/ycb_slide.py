@@ -579,3 +579,45 @@ __all__ = [
     "real_gel_poses",
     "settle_press",
 ]
+
+
+def write_corpus(
+    pairs: PairSet, out_dir: str | os.PathLike, test_per_object: int = 1, kind: str = "ycb_slide"
+) -> dict[str, Any]:
+    """Write loaded pairs (e.g. ``load_ycb_slide_real``) as a sharded corpus, split by
+    trajectory exactly like the stand-in: the last ``test_per_object`` recordings of each
+    object are the test split, so adjacent frames never straddle train and test."""
+    root = Path(out_dir)
+    (root / "shards").mkdir(parents=True, exist_ok=True)
+    for key in ("object", "trajectory"):
+        if key not in pairs.meta:
+            raise TactileBenchError(f"write_corpus: pairs lack the {key!r} metadata to split on")
+    write_backgrounds(root, pairs.real_background, pairs.sim_background)
+    objects, trajectories = pairs.meta["object"], pairs.meta["trajectory"]
+    shards = []
+    for obj in np.unique(objects):
+        mine = np.unique(trajectories[objects == obj])
+        test = set(mine[len(mine) - test_per_object :].tolist()) if len(mine) > 1 else set()
+        for t in mine:
+            idx = torch.from_numpy(np.flatnonzero((objects == obj) & (trajectories == t)))
+            rel = f"shards/{int(obj)}_{int(t)}.npz"
+            path = pairs.subset(idx).save_shard(root / rel)
+            shards.append(
+                {
+                    "file": rel,
+                    "object": int(obj),
+                    "trajectory": int(t),
+                    "split": "test" if int(t) in test else "train",
+                    "n": len(idx),
+                    "sha256": file_sha256(path),
+                }
+            )
+    manifest = {
+        "format": FORMAT,
+        "kind": kind,
+        "shards": shards,
+        "n_train": sum(s["n"] for s in shards if s["split"] == "train"),
+        "n_test": sum(s["n"] for s in shards if s["split"] == "test"),
+    }
+    atomic_write_json(root / "manifest.json", manifest)
+    return manifest

@@ -133,6 +133,7 @@ def run_recipe(
                 recipe.seed,
                 dict(recipe.trainer),
                 recipe.run_dir,
+                recipe.path.parent,
                 progress,
             )
             start = time.perf_counter()

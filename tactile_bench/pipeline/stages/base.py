@@ -45,6 +45,7 @@ class StageContext:
     seed: int
     trainer: dict[str, Any]
     run_dir: Path
+    recipe_dir: Path = Path(".")
     progress: bool = True
 
     def input(self, slot: str) -> StageResult:

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from pydantic import Field
 
-from tactile_bench.data.ycb_slide import DEFAULT_PAIRS, StandinConfig, build_ycb_slide_standin
+from tactile_bench.data.ycb_slide import (
+    DEFAULT_PAIRS,
+    StandinConfig,
+    build_ycb_slide_standin,
+    load_ycb_slide_real,
+    write_corpus,
+)
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.objects import OBJECTS
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
@@ -15,15 +22,25 @@ from tactile_bench.sensor.surrogate import SurrogateDigit
 
 
 class YcbSlideConfig(StageConfig):
-    """How many pairs, over which objects, sensed by which surrogate unit."""
+    """The corpus: the procedural stand-in (``source: surrogate``) with its size, objects and
+    surrogate unit, or real recordings in the original YCB-Slide layout (``source: PATH``)."""
 
+    source: str = "surrogate"
+    stride: int = Field(default=1, ge=1, description="subsample a real 30 Hz log")
     n_pairs: int = Field(default=DEFAULT_PAIRS, ge=10)
     objects: list[str] = list(OBJECTS)
     real_sensor: str = "digit"
     image_size: int = Field(default=64, ge=16, le=256)
 
 
-def _check(config: YcbSlideConfig, base_dir: object) -> None:
+def _check(config: YcbSlideConfig, base_dir: Path) -> None:
+    if config.source != "surrogate":
+        root = _resolve(config.source, base_dir)
+        if not (root / "real").is_dir():
+            raise TactileBenchError(
+                f"source: {root} is not a YCB-Slide folder (expected {root / 'real'}/<object>/)"
+            )
+        return
     unknown = [o for o in config.objects if o not in OBJECTS]
     if unknown:
         raise TactileBenchError(f"objects: unknown {unknown}; known: {', '.join(OBJECTS)}")
@@ -33,15 +50,32 @@ def _check(config: YcbSlideConfig, base_dir: object) -> None:
         raise TactileBenchError(f"real_sensor: {exc}") from None
 
 
+def _resolve(source: str, base_dir: Path) -> Path:
+    """A source path as written in the recipe: absolute, or relative to the recipe's folder."""
+    path = Path(source).expanduser()
+    return path if path.is_absolute() else (base_dir / path).resolve()
+
+
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: YcbSlideConfig = ctx.config
-    manifest = build_ycb_slide_standin(
-        ctx.directory,
-        config=StandinConfig(n_pairs=config.n_pairs, seed=ctx.seed, objects=tuple(config.objects)),
-        gel=GelSpec(size=config.image_size),
-        real_sensor=SurrogateDigit.from_profile(config.real_sensor),
-        progress=ctx.progress,
-    )
+    if config.source != "surrogate":
+        pairs = load_ycb_slide_real(
+            _resolve(config.source, ctx.recipe_dir),
+            gel=GelSpec(size=config.image_size),
+            stride=config.stride,
+            progress=ctx.progress,
+        )
+        manifest = write_corpus(pairs, ctx.directory)
+    else:
+        manifest = build_ycb_slide_standin(
+            ctx.directory,
+            config=StandinConfig(
+                n_pairs=config.n_pairs, seed=ctx.seed, objects=tuple(config.objects)
+            ),
+            gel=GelSpec(size=config.image_size),
+            real_sensor=SurrogateDigit.from_profile(config.real_sensor),
+            progress=ctx.progress,
+        )
     outputs = {"manifest": "manifest.json", "backgrounds": "backgrounds.npz"}
     for shard in sorted((ctx.directory / "shards").glob("*.npz")):
         outputs[f"shard_{shard.stem}"] = f"shards/{shard.name}"
