@@ -2,7 +2,8 @@
 
 Columns: depth | sim | the surrogate with only one effect on (one column each) | the
 surrogate with every effect of its profile on. Rows: braille characters (a centred
-contact) and pretraining objects (a frame of a sliding trajectory). Every column shares
+contact) and pretraining objects (the frame of a sliding trajectory with the largest
+contact patch). Every column shares
 the seed, so a column differs from ``sim`` only by its effect's physics (and its noise).
 """
 
@@ -44,7 +45,7 @@ def braille_heights(chars: Sequence[str], gel: GelSpec) -> torch.Tensor:
 
 
 def object_height(name: str, gel: GelSpec, seed: int = 0) -> torch.Tensor:
-    """Signed height of one frame in the middle of a sliding trajectory over an object."""
+    """Signed height of the frame of a sliding trajectory with the largest contact patch."""
     from tactile_bench.data.ycb_slide import settle_press
 
     parts = object_parts(name, seed)
@@ -52,14 +53,13 @@ def object_height(name: str, gel: GelSpec, seed: int = 0) -> torch.Tensor:
         exposed_surface(parts), name, n_trajectories=1, n_frames=60, seed=seed
     )
     renderer = MeshDepthRenderer.from_trimesh(object_mesh(name, seed), gel)
-    frame = slice(len(trajectory) // 2, len(trajectory) // 2 + 1)
     try:
-        height, _, _ = settle_press(
-            renderer, trajectory.poses[frame], np.asarray(trajectory.press_mm[frame])
-        )
+        height, _, valid = settle_press(renderer, trajectory.poses, np.asarray(trajectory.press_mm))
     finally:
         renderer.close()
-    return height
+    area = (height > 0).float().mean(dim=(1, 2, 3)) * torch.from_numpy(valid).float()
+    best = int(area.argmax())
+    return height[best : best + 1]
 
 
 def contact_sheet(

@@ -5,8 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from pydantic import Field
 
+from tactile_bench.data.pairs import load_pairs, read_manifest
 from tactile_bench.data.ycb_slide import (
     DEFAULT_PAIRS,
     StandinConfig,
@@ -17,6 +19,7 @@ from tactile_bench.data.ycb_slide import (
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.objects import OBJECTS
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.report.figures import sample_grid_png
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.surrogate import SurrogateDigit
 
@@ -76,11 +79,32 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             real_sensor=SurrogateDigit.from_profile(config.real_sensor),
             progress=ctx.progress,
         )
-    outputs = {"manifest": "manifest.json", "backgrounds": "backgrounds.npz"}
+    _preview(ctx.directory)
+    outputs = {
+        "manifest": "manifest.json",
+        "backgrounds": "backgrounds.npz",
+        "preview": "preview.png",
+    }
     for shard in sorted((ctx.directory / "shards").glob("*.npz")):
         outputs[f"shard_{shard.stem}"] = f"shards/{shard.name}"
     counts = {k: manifest[k] for k in ("n_train", "n_test", "frames_dropped") if k in manifest}
     return outputs, counts
+
+
+def _preview(root: Path, per_object: int = 1) -> None:
+    """depth | sim | real for the middle frame of one test recording of each object."""
+    pairs = load_pairs(root, "all")
+    objects = pairs.meta["object"]
+    picks = []
+    for obj in np.unique(objects):
+        idx = np.flatnonzero(objects == obj)
+        picks += idx[len(idx) // 2 :: max(1, len(idx))][:per_object].tolist()
+    names = read_manifest(root).get("meta_object_names")
+    labels = [names[int(objects[i])] if names else f"object {int(objects[i])}" for i in picks]
+    columns = {"depth": pairs.depth[picks], "real": pairs.real[picks]}
+    if pairs.sim is not None:
+        columns = {"depth": pairs.depth[picks], "sim": pairs.sim[picks], "real": pairs.real[picks]}
+    sample_grid_png(columns, labels, root / "preview.png", title="corpus frames")
 
 
 STAGE = StageKind(
