@@ -32,15 +32,6 @@ class BlurrySensor:
         return (self.background(gel.size) + 60 * blurred + 3 * noise).clamp(0, 255)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """These tensors are tiny: on 2 busy cores a second torch thread made them ~18x slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 @pytest.fixture(scope="module")
 def bank() -> HeightFieldBank:
     return build_bank(CHARS)

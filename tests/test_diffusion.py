@@ -24,15 +24,6 @@ from tactile_bench.translators.diffusion.torch_model import count_parameters
 TINY = {"preset": "tiny", "image_size": 32, "max_steps": 2, "batch_size": 4, "steps": 3}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny nets: one intra-op thread is faster, and robust to a busy 2-core machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def fitted(tmp_path: Path, **overrides: object) -> DiffusionTranslator:
     translator = DiffusionTranslator({**TINY, **overrides})
     depth, foreground = tiny_pairs(n=8, size=32)

@@ -9,15 +9,6 @@ from torchmetrics.image.kid import poly_mmd
 from tactile_bench.metrics import fit_encoder, kid, mmd2_unbiased, ssim_mse
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny nets: one intra-op thread is faster, and robust to a busy 2-core machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def test_identical_images_score_perfectly() -> None:
     images = torch.randint(0, 256, (4, 3, 32, 32), generator=torch.Generator().manual_seed(0))
     scores = ssim_mse(images.to(torch.uint8), images.to(torch.uint8))

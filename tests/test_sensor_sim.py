@@ -16,15 +16,6 @@ from tactile_bench.sensor.optics import SimOptics, surface_normals
 CHARS = ("A", "Y", "#")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """These tensors are tiny: on 2 busy cores a second torch thread made them ~18x slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 @pytest.fixture(scope="module")
 def bank() -> HeightFieldBank:
     return build_bank(CHARS)

@@ -15,16 +15,6 @@ import torch
 from tactile_bench.testing import TranslatorContract, tiny_pairs
 from tactile_bench.translators import create_translator, registry
 
-
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny nets: one intra-op thread is faster, and robust to a busy 2-core machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 TINY_DIFFUSION = {
     "preset": "tiny", "image_size": 32, "max_steps": 2, "batch_size": 4,
     "sampler": "dpmsolver++", "steps": 3,

@@ -9,6 +9,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict
 
+from tactile_bench.errors import TactileBenchError
+
 
 class StageConfig(BaseModel):
     """Base of every stage config: unknown keys are errors."""
@@ -55,6 +57,16 @@ class StageContext:
     def optional_input(self, slot: str) -> StageResult | None:
         results = self.inputs.get(slot) or []
         return results[0] if results else None
+
+
+def check_real_sensor(profile: str) -> None:
+    """A data stage's ``real_sensor`` must load as a surrogate profile; the error names the key."""
+    from tactile_bench.sensor.surrogate import SurrogateDigit
+
+    try:
+        SurrogateDigit.from_profile(profile)
+    except TactileBenchError as exc:
+        raise TactileBenchError(f"real_sensor: {exc}") from None
 
 
 def _no_check(config: Any, base_dir: Path) -> None:

@@ -11,7 +11,12 @@ from pydantic import Field
 from tactile_bench.data.braille import build_braille_sets
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
-from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.pipeline.stages.base import (
+    StageConfig,
+    StageContext,
+    StageKind,
+    check_real_sensor,
+)
 from tactile_bench.report.figures import sample_grid_png
 from tactile_bench.sensor.background import sim_background
 from tactile_bench.sensor.depth import GelSpec
@@ -39,10 +44,7 @@ def _check(config: BrailleDataConfig, base_dir: Path) -> None:
     unknown = sorted(set(config.chars) - set(CHARACTERS))
     if unknown:
         raise TactileBenchError(f"chars: not braille characters of the paper: {''.join(unknown)}")
-    try:
-        SurrogateDigit.from_profile(config.real_sensor)
-    except TactileBenchError as exc:
-        raise TactileBenchError(f"real_sensor: {exc}") from None
+    check_real_sensor(config.real_sensor)
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:

@@ -18,7 +18,12 @@ from tactile_bench.data.ycb_slide import (
 )
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.objects import OBJECTS
-from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.pipeline.stages.base import (
+    StageConfig,
+    StageContext,
+    StageKind,
+    check_real_sensor,
+)
 from tactile_bench.report.figures import sample_grid_png
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.surrogate import SurrogateDigit
@@ -47,10 +52,7 @@ def _check(config: YcbSlideConfig, base_dir: Path) -> None:
     unknown = [o for o in config.objects if o not in OBJECTS]
     if unknown:
         raise TactileBenchError(f"objects: unknown {unknown}; known: {', '.join(OBJECTS)}")
-    try:
-        SurrogateDigit.from_profile(config.real_sensor)
-    except TactileBenchError as exc:
-        raise TactileBenchError(f"real_sensor: {exc}") from None
+    check_real_sensor(config.real_sensor)
 
 
 def _resolve(source: str, base_dir: Path) -> Path:
