@@ -192,6 +192,12 @@ def build_parser() -> argparse.ArgumentParser:
         description="Bridge the tactile sim-to-real gap: simulate, translate, classify, report.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch CPU threads (default: torch's choice; 1 is faster when the cores are busy)",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     fit = sub.add_parser("fit", help="run a recipe (cached stages; reruns skip finished work)")
@@ -273,6 +279,10 @@ def main(args: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help or a usage error: argparse already printed
         return int(exc.code or 0)
     _configure_logging(logging.DEBUG if ns.verbose else logging.INFO)
+    if ns.threads:
+        import torch
+
+        torch.set_num_threads(ns.threads)
     try:
         return ns.func(ns)
     except TactileBenchError as exc:

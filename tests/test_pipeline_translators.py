@@ -106,3 +106,44 @@ def test_missing_real_folder_is_a_recipe_error(
     )
     assert main(["fit", str(recipe), "--run-dir", str(tmp_path / "run")]) == 2
     assert "nowhere" in capsys.readouterr().err
+
+
+COMPARE = """
+name: compare
+stages:
+  - name: braille
+    kind: braille_data
+    config: {chars: ABC, n_finetune: 30, n_test: 12, n_classifier: 30, n_classifier_test: 9}
+  - name: fit_cgan
+    kind: fit_translator
+    inputs: {braille: braille}
+    config: {translator: cgan, translator_config: {max_steps: 2, batch_size: 4}}
+  - name: translate_sim
+    kind: translate
+    inputs: {data: braille}
+    config: {translator: sim, sets: [test]}
+  - name: translate_cgan
+    kind: translate
+    inputs: {data: braille, translator: fit_cgan}
+    config: {sets: [test]}
+  - name: compare
+    kind: compare_translators
+    inputs: {data: braille, translated: [translate_sim, translate_cgan]}
+    config: {encoder_steps: 5, samples: 3}
+"""
+
+
+def test_compare_translators_scores_each_on_the_same_test_set(tmp_path: Path) -> None:
+    path = tmp_path / "compare.yaml"
+    path.write_text(COMPARE)
+    run_dir = tmp_path / "run"
+    assert main(["fit", str(path), "--run-dir", str(run_dir), "--no-progress"]) == 0
+    run = json.loads((run_dir / "run.json").read_text())
+    compare_dir = run_dir / run["stages"][-1]["directory"]
+    rows = json.loads((compare_dir / "similarity.json").read_text())["rows"]
+    assert [r["translator"] for r in rows] == ["sim", "cgan"]
+    for r in rows:
+        assert 0.0 < r["ssim"] <= 1.0 and r["mse"] > 0.0 and r["kid"] == r["kid"]
+    assert rows[1]["paper_ssim"] == 0.879
+    assert "| cgan |" in (run_dir / "similarity.md").read_text()
+    assert (run_dir / "samples.png").read_bytes()[:4] == b"\x89PNG"

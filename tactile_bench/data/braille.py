@@ -246,7 +246,9 @@ def build_braille_sets(
     classifier_grid = classifier_protocol(chars)
     if n_classifier is not None and n_classifier < len(classifier_grid):
         (cl_idx,) = draw_disjoint(
-            classifier_grid.labels, (n_classifier,), len(chars),
+            classifier_grid.labels,
+            (n_classifier,),
+            len(chars),
             int(select.generate_state(2)[1]),
         )
         classifier_grid = classifier_grid.index(cl_idx)

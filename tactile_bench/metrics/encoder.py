@@ -24,14 +24,18 @@ class FeatureEncoder(nn.Module):
     def __init__(self, width: int = 16, code_channels: int = 32, pool: int = 2) -> None:
         super().__init__()
         self.encoder = nn.Sequential(
-            nn.Conv2d(3, width, 3, 2, 1), nn.SiLU(),
-            nn.Conv2d(width, 2 * width, 3, 2, 1), nn.SiLU(),
+            nn.Conv2d(3, width, 3, 2, 1),
+            nn.SiLU(),
+            nn.Conv2d(width, 2 * width, 3, 2, 1),
+            nn.SiLU(),
             nn.Conv2d(2 * width, code_channels, 3, 2, 1),
         )
         self.decoder = nn.Sequential(
             nn.SiLU(),
-            nn.ConvTranspose2d(code_channels, 2 * width, 4, 2, 1), nn.SiLU(),
-            nn.ConvTranspose2d(2 * width, width, 4, 2, 1), nn.SiLU(),
+            nn.ConvTranspose2d(code_channels, 2 * width, 4, 2, 1),
+            nn.SiLU(),
+            nn.ConvTranspose2d(2 * width, width, 4, 2, 1),
+            nn.SiLU(),
             nn.ConvTranspose2d(width, 3, 4, 2, 1),
         )
         self.pool = pool
@@ -114,11 +118,13 @@ def kid(
     """KID (mean, std) over random equal-size subsets, as torchmetrics' KernelInceptionDistance."""
     size = min(subset_size, len(features_a), len(features_b))
     gen = torch.Generator().manual_seed(seed)
-    values = torch.stack([
-        mmd2_unbiased(
-            features_a[torch.randperm(len(features_a), generator=gen)[:size]],
-            features_b[torch.randperm(len(features_b), generator=gen)[:size]],
-        )
-        for _ in range(subsets)
-    ])
+    values = torch.stack(
+        [
+            mmd2_unbiased(
+                features_a[torch.randperm(len(features_a), generator=gen)[:size]],
+                features_b[torch.randperm(len(features_b), generator=gen)[:size]],
+            )
+            for _ in range(subsets)
+        ]
+    )
     return float(values.mean()), float(values.std()) if subsets > 1 else 0.0

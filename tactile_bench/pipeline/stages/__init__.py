@@ -3,6 +3,7 @@
 from tactile_bench.pipeline.stages import (
     braille_data,
     classify,
+    compare_translators,
     effect_ablation,
     fit_translator,
     report,
@@ -19,6 +20,7 @@ STAGES: dict[str, StageKind] = {
         fit_translator.STAGE,
         translate.STAGE,
         classify.STAGE,
+        compare_translators.STAGE,
         effect_ablation.STAGE,
         report.STAGE,
     )

@@ -97,7 +97,8 @@ class CGANTranslator(Translator):
         g_opt.step()
         self.log_dict(
             {"d_loss": d_loss, "g_loss": g_loss, "g_adv": adversarial, "g_l1": l1},
-            prog_bar=True, batch_size=len(depth),
+            prog_bar=True,
+            batch_size=len(depth),
         )
 
     def configure_optimizers(self) -> list[torch.optim.Optimizer]:

@@ -68,14 +68,18 @@ class PatchDiscriminator(nn.Module):
     def __init__(self, in_channels: int = 4, base_channels: int = 16, n_layers: int = 3) -> None:
         super().__init__()
         layers: list[nn.Module] = [
-            nn.Conv2d(in_channels, base_channels, 4, 2, 1), nn.LeakyReLU(0.2)
+            nn.Conv2d(in_channels, base_channels, 4, 2, 1),
+            nn.LeakyReLU(0.2),
         ]
         width = base_channels
         for i in range(1, n_layers + 1):
             previous, width = width, base_channels * min(2**i, 8)
             stride = 2 if i < n_layers else 1
-            layers += [nn.Conv2d(previous, width, 4, stride, 1, bias=False), _norm(width),
-                       nn.LeakyReLU(0.2)]
+            layers += [
+                nn.Conv2d(previous, width, 4, stride, 1, bias=False),
+                _norm(width),
+                nn.LeakyReLU(0.2),
+            ]
         layers.append(nn.Conv2d(width, 1, 4, 1, 1))
         self.model = nn.Sequential(*layers)
 

@@ -76,8 +76,11 @@ class DiffusionTranslator(Translator):
             torch.manual_seed(cfg.seed)
             self.unet = build_unet(PRESETS[cfg.preset], cfg.image_size)
         self.noise_scheduler = training_scheduler(
-            cfg.train_timesteps, cfg.beta_start, cfg.beta_end,
-            clip_range=cfg.foreground_scale / 2, prediction_type=cfg.prediction,
+            cfg.train_timesteps,
+            cfg.beta_start,
+            cfg.beta_end,
+            clip_range=cfg.foreground_scale / 2,
+            prediction_type=cfg.prediction,
         )
         self.ema_unet: UNet2DModel | None = None
         if cfg.ema:

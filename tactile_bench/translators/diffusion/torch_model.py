@@ -42,17 +42,21 @@ PRESETS: dict[str, UNetSpec] = {
     "cpu": UNetSpec((32, 64, 64), 1, *_plain(3)),
     # DESIGN.md's 6.3 M network: 2 ResNet blocks a stage, attention at 16 x 16 (for 64 x 64).
     "medium": UNetSpec(
-        (32, 64, 128, 128), 2,
+        (32, 64, 128, 128),
+        2,
         ("DownBlock2D", "DownBlock2D", "AttnDownBlock2D", "DownBlock2D"),
         ("UpBlock2D", "AttnUpBlock2D", "UpBlock2D", "UpBlock2D"),
-        add_attention=True, norm_num_groups=32,
+        add_attention=True,
+        norm_num_groups=32,
     ),
     # Paper-class, for GPUs: 25 M parameters, same layout, twice as wide.
     "paper": UNetSpec(
-        (64, 128, 256, 256), 2,
+        (64, 128, 256, 256),
+        2,
         ("DownBlock2D", "DownBlock2D", "AttnDownBlock2D", "DownBlock2D"),
         ("UpBlock2D", "AttnUpBlock2D", "UpBlock2D", "UpBlock2D"),
-        add_attention=True, norm_num_groups=32,
+        add_attention=True,
+        norm_num_groups=32,
     ),
 }
 
