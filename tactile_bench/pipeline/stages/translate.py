@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 import torch
 from pydantic import Field
+from tqdm.auto import tqdm
 
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.errors import TactileBenchError
@@ -72,10 +73,17 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         background = (
             split.sim_background if config.background == "sim" else split.real_background
         ).float()
-        chunks = [
-            translator.translate(split.depth[i : i + config.batch_size], background, generator)
-            for i in range(0, len(split), config.batch_size)
-        ]
+        chunks = []
+        with tqdm(
+            total=len(split),
+            desc=f"translate {name} ({translator.name})",
+            unit="image",
+            disable=not ctx.progress,
+        ) as bar:
+            for i in range(0, len(split), config.batch_size):
+                depth = split.depth[i : i + config.batch_size]
+                chunks.append(translator.translate(depth, background, generator))
+                bar.update(len(depth))
         images = torch.cat(chunks).round().clamp(0, 255).to(torch.uint8)
         atomic_write_npz(
             ctx.directory / f"{name}.npz",
