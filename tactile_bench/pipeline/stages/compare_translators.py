@@ -60,7 +60,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         )
         images = torch.from_numpy(load_npz(result.path("test"), ("images",))["images"])
         rows[-1]["kid"], rows[-1]["kid_std"] = kid(encoder.features(images.float()), real_features)
-        columns[f"{name} ({result.name})"] = images[picks]
+        title = name if name not in columns else f"{name}\n{result.name}"
+        columns[title] = images[picks]
     sample_grid_png(
         columns,
         [CHARACTERS[int(test.labels[i])] for i in picks],
