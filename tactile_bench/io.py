@@ -6,11 +6,15 @@ import hashlib
 import json
 import os
 import tempfile
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
+
+from tactile_bench.errors import TactileBenchError
 
 
 def _atomic(path: Path, write: Callable[[Path], None]) -> Path:
@@ -59,7 +63,6 @@ def json_sha256(obj: Any) -> str:
 
 def atomic_write_npz(path: Path, **arrays: Any) -> Path:
     """np.savez atomically (uncompressed: these caches are read far more often than written)."""
-    import numpy as np
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as handle:
@@ -70,12 +73,6 @@ def atomic_write_npz(path: Path, **arrays: Any) -> Path:
 
 def load_npz(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
     """Read the named arrays of an .npz, turning a missing/corrupt file into a one-line error."""
-    import zipfile
-
-    import numpy as np
-
-    from tactile_bench.errors import TactileBenchError
-
     try:
         with np.load(path, allow_pickle=False) as data:
             missing = [k for k in keys if k not in data.files]

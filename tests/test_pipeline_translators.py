@@ -35,7 +35,11 @@ stages:
   - name: classify
     kind: classify
     inputs: {data: braille, images: translated}
-    config: {row: diffusion, classifier: {width: 4, epochs: 1}}
+    config:
+      row: diffusion
+      finetune_fraction: 0.5
+      finetune_epochs: 1
+      classifier: {width: 4, epochs: 1}
   - name: report
     kind: report
     inputs: {rows: [classify]}
@@ -62,6 +66,9 @@ def test_pretrain_finetune_translate_classify(tmp_path: Path) -> None:
     assert translated["test_similarity"]["mse"] >= 0.0
     (row,) = json.loads((run_dir / "results.json").read_text())["rows"]
     assert row["row"] == "diffusion"
+    summary = json.loads((dirs["classify"] / "metrics.json").read_text())["summary"]
+    assert summary["finetune_fraction"] == 0.5
+    assert (dirs["classify"] / "seed0" / "finetune" / "checkpoints" / "last.ckpt").exists()
 
 
 def test_fit_needs_exactly_one_data_source(

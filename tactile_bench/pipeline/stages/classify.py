@@ -70,8 +70,22 @@ def _summary(values: list[float]) -> dict[str, float]:
     return {"mean": float(arr.mean()), "std": float(arr.std(ddof=1)) if len(arr) > 1 else 0.0}
 
 
+def _real_finetune_pool(ctx: StageContext) -> BrailleSet | None:
+    """The stratified real fraction classifiers fine-tune on (None when there is none)."""
+    config: ClassifyConfig = ctx.config
+    if config.finetune_fraction == 0:
+        return None
+    pool = BrailleSet.load(ctx.input("data").path("finetune"))
+    return pool.subset(stratified_subset(pool.labels, config.finetune_fraction, ctx.seed))
+
+
 def _train_one(
-    ctx: StageContext, seed: int, foreground: torch.Tensor, labels: torch.Tensor, n_classes: int
+    ctx: StageContext,
+    seed: int,
+    foreground: torch.Tensor,
+    labels: torch.Tensor,
+    n_classes: int,
+    pool: BrailleSet | None,
 ) -> tuple[Any, torch.Tensor]:
     """Train (and optionally fine-tune on real) one classifier; returns it and held-out idx."""
     config: ClassifyConfig = ctx.config
@@ -87,9 +101,7 @@ def _train_one(
         trainer_kwargs=ctx.trainer,
         num_classes=n_classes,
     )
-    if config.finetune_fraction > 0:
-        pool = BrailleSet.load(ctx.input("data").path("finetune"))
-        pool = pool.subset(stratified_subset(pool.labels, config.finetune_fraction, ctx.seed))
+    if pool is not None:
         tune = ClassifierConfig(
             **(config.classifier.model_dump() | {"epochs": config.finetune_epochs}), seed=seed
         )
@@ -129,9 +141,10 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     n_classes = int(max(labels.max(), test.labels.max())) + 1
     classes = list(CHARACTERS[:n_classes])
 
+    pool = _real_finetune_pool(ctx)
     per_seed = []
     for seed in config.seeds:
-        model, held_idx = _train_one(ctx, seed, foreground, labels, n_classes)
+        model, held_idx = _train_one(ctx, seed, foreground, labels, n_classes, pool)
         heldout = (
             evaluate(model, foreground[held_idx], labels[held_idx], num_classes=n_classes)
             if len(held_idx)

@@ -45,8 +45,10 @@ def load_fitted(ctx: StageContext, slot: str) -> Translator | None:
     return kind.load(result.path("translator"))
 
 
-def _pairs(ctx: StageContext, fraction: float) -> tuple[Any, Any, Any, Any]:
-    """(train depth, train foreground, held-out depth, held-out real images) from the input."""
+def _pairs(
+    ctx: StageContext, fraction: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Train depth and foreground; held-out depth, real images and background(s)."""
     braille, corpus = ctx.optional_input("braille"), ctx.optional_input("corpus")
     if braille is not None:
         pool = BrailleSet.load(braille.path("finetune"))
