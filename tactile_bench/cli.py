@@ -8,6 +8,7 @@ stderr, exit code 2, no traceback.
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import os
 import sys
@@ -17,6 +18,10 @@ from pathlib import Path
 from tactile_bench.errors import TactileBenchError
 
 EXIT_USER_ERROR = 2
+
+# Modules that add a subcommand: each defines ``register(subparsers) -> None`` and sets
+# ``func`` on its parser. Listed, not discovered, so a command appears only when it ships.
+COMMAND_MODULES: tuple[str, ...] = ()
 
 
 def _cmd_fit(ns: argparse.Namespace) -> int:
@@ -256,6 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
     lst = sub.add_parser("list", help="list translators, effects, recipes and stage kinds")
     lst.add_argument("what", nargs="?", choices=sorted(LISTINGS), help="only this listing")
     lst.set_defaults(func=_cmd_list)
+
+    for module_name in COMMAND_MODULES:
+        importlib.import_module(module_name).register(sub)
     return parser
 
 
