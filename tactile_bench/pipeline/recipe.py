@@ -116,6 +116,16 @@ def apply_overrides(doc: dict[str, Any], overrides: list[str], path: Path) -> di
     return doc
 
 
+def _unshared(node: Any) -> Any:
+    """A copy with no shared sub-mappings: YAML anchors (``&base`` / ``<<: *base``) alias
+    nested dicts, so a ``--set`` on one stage would otherwise change every stage using them."""
+    if isinstance(node, dict):
+        return {k: _unshared(v) for k, v in node.items()}
+    if isinstance(node, list):
+        return [_unshared(v) for v in node]
+    return node
+
+
 def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     """Read, override and validate a recipe; every error names the file and the key."""
     path = Path(path)
@@ -131,7 +141,7 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
         raise TactileBenchError(f"{path}:{where} not valid YAML") from None
     if not isinstance(raw, dict):
         raise TactileBenchError(f"{path}: a recipe is a mapping with 'name' and 'stages'")
-    raw = apply_overrides(raw, overrides or [], path)
+    raw = apply_overrides(_unshared(raw), overrides or [], path)
     try:
         doc = _RecipeDoc(**raw)
     except ValidationError as exc:

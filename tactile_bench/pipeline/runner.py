@@ -135,6 +135,7 @@ def run_recipe(
                 recipe.run_dir,
                 recipe.path.parent,
                 progress,
+                previous=list(results.values()),
             )
             start = time.perf_counter()
             outputs, metrics = stage.kind.run(ctx)

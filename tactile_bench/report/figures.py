@@ -147,3 +147,23 @@ def sample_grid_png(
     if title:
         fig.suptitle(title, fontsize=10)
     return save_figure(fig, path)
+
+
+def per_class_heatmap_png(
+    matrix: np.ndarray,
+    row_labels: Sequence[str],
+    classes: Sequence[str],
+    path: str | Path,
+    title: str = "Per-class accuracy on the real test set",
+) -> Path:
+    """Rows (e.g. the table's rows) x classes, accuracy in [0, 1]; NaN shows as blank."""
+    matrix = np.asarray(matrix, dtype=float)
+    fig = Figure(figsize=(0.32 * len(classes) + 2.2, 0.4 * len(row_labels) + 1.2))
+    ax = fig.subplots()
+    im = ax.imshow(matrix, vmin=0.0, vmax=1.0, cmap="viridis", aspect="auto")
+    ax.set_xticks(range(len(classes)), list(classes), fontsize=8)
+    ax.set_yticks(range(len(row_labels)), list(row_labels), fontsize=8)
+    ax.set_title(title, fontsize=10)
+    fig.colorbar(im, ax=ax, fraction=0.03, pad=0.02)
+    fig.tight_layout()
+    return save_figure(fig, path)

@@ -49,6 +49,7 @@ class StageContext:
     run_dir: Path
     recipe_dir: Path = Path(".")
     progress: bool = True
+    previous: list[StageResult] = field(default_factory=list)  # stages before this one
 
     def input(self, slot: str) -> StageResult:
         """The single stage feeding ``slot``."""
@@ -57,6 +58,12 @@ class StageContext:
     def optional_input(self, slot: str) -> StageResult | None:
         results = self.inputs.get(slot) or []
         return results[0] if results else None
+
+
+def resolve_source(source: str, base_dir: Path) -> Path:
+    """A data path as written in a recipe: absolute, or relative to the recipe's folder."""
+    path = Path(source).expanduser()
+    return path if path.is_absolute() else (base_dir / path).resolve()
 
 
 def check_real_sensor(profile: str) -> None:

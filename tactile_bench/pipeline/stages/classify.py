@@ -1,7 +1,8 @@
 """Stage ``classify``: train braille classifiers (one per seed) and test them on real images.
 
-A row of the paper's table is: train on some images (sim, translated, or real), optionally
-fine-tune on a fraction of the real fine-tuning pool, test on the real classifier test set
+A row of the paper's table is: train on some images (sim, translated, or real) or start from
+another classify stage's models (input ``init``, same seeds), optionally fine-tune on a
+fraction of the real fine-tuning pool, test on the real classifier test set
 (upright, off-grid contacts). The same test contacts rendered by the simulator give the
 accuracy on sim at identical poses: the difference between the two is the sensor's reality
 gap alone, with no pose shift mixed in. A held-out part of the training images is scored too.
@@ -20,10 +21,16 @@ from tactile_bench.classify.module import BrailleClassifier
 from tactile_bench.classify.train import ClassifierConfig, evaluate, train_classifier
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.datamodule import stratified_split, stratified_subset
+from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.io import atomic_torch_save, atomic_write_json, load_npz
 from tactile_bench.pipeline.loggers import make_loggers
-from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.pipeline.stages.base import (
+    StageConfig,
+    StageContext,
+    StageKind,
+    StageResult,
+)
 from tactile_bench.report.figures import confusion_png, per_class_bar_png
 from tactile_bench.translators import image_to_foreground
 
@@ -52,8 +59,23 @@ class ClassifyConfig(StageConfig):
     classifier: ClassifierSettings = ClassifierSettings()
 
 
+def _has(ctx: StageContext, split: str, what: str) -> bool:
+    """Whether the data stage's ``split`` carries ``what`` ("has_sim"/"has_real")."""
+    content = ctx.input("data").metrics.get("content") or {}
+    return bool(content.get(split, {}).get(what, True))
+
+
 def _training_foreground(ctx: StageContext) -> tuple[torch.Tensor, torch.Tensor]:
     config: ClassifyConfig = ctx.config
+    if config.train_images != "translated" and not _has(
+        ctx, config.train_set, f"has_{config.train_images}"
+    ):
+        raise TactileBenchError(
+            f"stage {ctx.name}: the {config.train_set!r} set of data stage "
+            f"{ctx.input('data').name!r} has no {config.train_images} images (a real-data "
+            "source has real images only in 'finetune', 'test' and 'classifier_test'); "
+            "set train_set: finetune"
+        )
     if config.train_images == "translated":
         arrays = load_npz(
             ctx.input("images").path(config.train_set), ("images", "background", "labels")
@@ -87,20 +109,28 @@ def _train_one(
     n_classes: int,
     pool: BrailleSet | None,
 ) -> tuple[Any, torch.Tensor]:
-    """Train (and optionally fine-tune on real) one classifier; returns it and held-out idx."""
+    """Train (and optionally fine-tune on real) one classifier; returns it and held-out idx.
+
+    With an ``init`` stage the base training is that stage's model of the same seed (a
+    fine-tuning row then costs only the fine-tuning, not a second identical base training).
+    """
     config: ClassifyConfig = ctx.config
     train_idx, held_idx = stratified_split(labels, config.heldout_fraction, seed)
-    settings = ClassifierConfig(**config.classifier.model_dump(), seed=seed)
     seed_dir = ctx.directory / f"seed{seed}"
-    model = train_classifier(
-        foreground[train_idx],
-        labels[train_idx],
-        settings,
-        seed_dir,
-        loggers=make_loggers(seed_dir, f"{ctx.name}-seed{seed}"),
-        trainer_kwargs=ctx.trainer,
-        num_classes=n_classes,
-    )
+    init = ctx.optional_input("init")
+    if init is not None:
+        model = load_classifier(_init_model_path(init, seed))
+    else:
+        settings = ClassifierConfig(**config.classifier.model_dump(), seed=seed)
+        model = train_classifier(
+            foreground[train_idx],
+            labels[train_idx],
+            settings,
+            seed_dir,
+            loggers=make_loggers(seed_dir, f"{ctx.name}-seed{seed}"),
+            trainer_kwargs=ctx.trainer,
+            num_classes=n_classes,
+        )
     if pool is not None:
         tune = ClassifierConfig(
             **(config.classifier.model_dump() | {"epochs": config.finetune_epochs}), seed=seed
@@ -116,6 +146,16 @@ def _train_one(
             init=model,
         )
     return model, held_idx
+
+
+def _init_model_path(init: StageResult, seed: int) -> Path:
+    key = f"model_seed{seed}"
+    if key not in init.outputs:
+        raise TactileBenchError(
+            f"init: stage {init.name!r} has no model for seed {seed} "
+            f"(it trained seeds {sorted(k[10:] for k in init.outputs if k.startswith(key[:10]))})"
+        )
+    return init.path(key)
 
 
 def save_classifier(model: Any, path: Path) -> Path:
@@ -151,7 +191,11 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             else None
         )
         real = evaluate(model, test_fg, test.labels, num_classes=n_classes)
-        sim = evaluate(model, test.foreground("sim"), test.labels, num_classes=n_classes)
+        sim = (
+            evaluate(model, test.foreground("sim"), test.labels, num_classes=n_classes)
+            if _has(ctx, "classifier_test", "has_sim")
+            else None
+        )
         per_seed.append({"seed": seed, "test": real, "test_sim": sim, "heldout": heldout})
         save_classifier(model, ctx.directory / f"model_seed{seed}.pt")
 
@@ -175,7 +219,11 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             m: _summary([s["test"][m] for s in per_seed])
             for m in ("accuracy", "precision", "recall")
         },
-        "test_sim_accuracy": _summary([s["test_sim"]["accuracy"] for s in per_seed]),
+        "test_sim_accuracy": (
+            _summary([s["test_sim"]["accuracy"] for s in per_seed])
+            if per_seed[0]["test_sim"]
+            else None
+        ),
         "heldout_accuracy": (
             _summary([s["heldout"]["accuracy"] for s in per_seed])
             if per_seed[0]["heldout"]
@@ -197,5 +245,5 @@ STAGE = StageKind(
     description="train braille classifiers over seeds (optionally fine-tune on real), test on real",
     config_model=ClassifyConfig,
     run=_run,
-    input_slots={"data": True, "images": False},
+    input_slots={"data": True, "images": False, "init": False},
 )

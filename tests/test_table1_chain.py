@@ -1,0 +1,122 @@
+"""recipes/table1.yaml and quick.yaml: every paper row through the real chain, shrunk to seconds.
+
+The test reads the shipped table1 recipe, keeps its stages, inputs and rows, and only makes
+every size tiny, so the chain users run is the chain tested.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from tactile_bench.cli import main
+from tactile_bench.pipeline.recipe import load_recipe
+from tactile_bench.report.table import PAPER_TABLE
+
+REPO = Path(__file__).resolve().parents[1]
+TINY_DIFFUSION = {"preset": "tiny", "image_size": 32, "max_steps": 2, "batch_size": 4}
+TINY_CLASSIFIER = {"width": 4, "epochs": 1, "batch_size": 8}
+
+
+def _shrink(doc: dict[str, Any]) -> dict[str, Any]:
+    for stage in doc["stages"]:
+        config = stage.setdefault("config", {})
+        kind = stage["kind"]
+        if kind == "braille_data":
+            config.update(
+                chars="ABC",
+                n_finetune=30,
+                n_test=12,
+                n_classifier=48,
+                n_classifier_test=12,
+                image_size=32,
+            )
+        elif kind == "ycb_slide_data":
+            config.update(n_pairs=24, objects=["005_tomato_soup_can"], image_size=32)
+        elif kind == "fit_translator":
+            small = TINY_DIFFUSION if config["translator"] == "diffusion" else {"max_steps": 2}
+            config["translator_config"] = {**small, "batch_size": 4}
+        elif kind == "translate" and stage["name"] == "translate_diffusion":
+            config["translator_config"] = {"steps": 2}
+        elif kind == "compare_translators":
+            config["encoder_steps"] = 2
+        elif kind == "classify":
+            config.update(seeds=[0, 1], classifier=TINY_CLASSIFIER, finetune_epochs=1)
+    return doc
+
+
+@pytest.fixture(scope="module")
+def table_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    tmp = tmp_path_factory.mktemp("table1")
+    doc = yaml.safe_load((REPO / "recipes" / "table1.yaml").read_text())
+    recipe = tmp / "table1_tiny.yaml"
+    recipe.write_text(yaml.safe_dump(_shrink(doc)))
+    run_dir = tmp / "run"
+    assert main(["fit", str(recipe), "--run-dir", str(run_dir), "--no-progress"]) == 0
+    return run_dir
+
+
+def _stage_dirs(run_dir: Path) -> dict[str, Path]:
+    run = json.loads((run_dir / "run.json").read_text())
+    return {s["name"]: run_dir / s["directory"] for s in run["stages"]}
+
+
+def test_table_has_every_paper_row_with_mean_and_std(table_run: Path) -> None:
+    table = json.loads((table_run / "table.json").read_text())
+    assert [r["row"] for r in table["rows"]] == list(PAPER_TABLE)
+    for row in table["rows"]:
+        for metric in ("accuracy", "precision", "recall"):
+            assert set(row[metric]) == {"mean", "std"}
+            assert 0.0 <= row[metric]["mean"] <= 1.0
+        assert row["seeds"] == [0, 1]
+        assert row["paper"]["accuracy"] == PAPER_TABLE[row["row"]].accuracy
+    translators = {s["translator"] for s in table["similarity"]}
+    assert translators == {"sim", "lighting_aug", "cgan", "diffusion"}
+    timed = {s["name"] for s in table["stages"]}
+    assert {"braille", "pretrain_diffusion", "classify_real"} <= timed
+    assert all(s["wall_time_s"] >= 0 for s in table["stages"])
+    assert table["versions"]["torch"]
+
+
+def test_report_md_and_self_contained_html(table_run: Path) -> None:
+    md = (table_run / "report.md").read_text()
+    for heading in ("ours beside the paper", "claims, checked", "Per-class", "Confusion", "time"):
+        assert heading in md
+    for link in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md):
+        assert (table_run / link).is_file(), link  # links resolve from the run directory
+    html = (table_run / "report.html").read_text()
+    sources = re.findall(r'src="([^"]+)"', html)
+    assert sources and all(s.startswith("data:image/png;base64,") for s in sources)
+    assert "Tactile diffusion" in html and "cGAN" in html
+
+
+def test_finetuning_rows_start_from_their_base_rows_models(table_run: Path) -> None:
+    dirs = _stage_dirs(table_run)
+    for row in ("classify_sim_ft20", "classify_sim_ft80", "classify_sim_ft100"):
+        seed_dir = dirs[row] / "seed0"
+        assert (seed_dir / "finetune").is_dir()
+        assert not (seed_dir / "checkpoints").exists()  # no second base training
+    base = dirs["classify_sim"] / "seed0"
+    assert (base / "checkpoints").is_dir() and not (base / "finetune").exists()
+
+
+@pytest.mark.parametrize("name", ["table1", "quick"])
+def test_shipped_recipes_validate_and_report_all_nine_rows(repo: Path, name: str) -> None:
+    recipe = load_recipe(repo / "recipes" / f"{name}.yaml")
+    report = recipe.stage("report")
+    rows = [recipe.stage(r).config.row for r in report.inputs["rows"]]
+    assert rows == list(PAPER_TABLE)
+    for stage in recipe.stages:
+        if stage.kind.name == "classify":
+            assert len(stage.config.seeds) >= 3
+
+
+def test_set_on_one_stage_does_not_leak_through_yaml_anchors(repo: Path) -> None:
+    recipe = load_recipe(repo / "recipes" / "table1.yaml", ["classify_sim.classifier.width=4"])
+    assert recipe.stage("classify_sim").config.classifier.width == 4
+    assert recipe.stage("classify_cgan").config.classifier.width == 16
