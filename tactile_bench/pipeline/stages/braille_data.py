@@ -1,4 +1,10 @@
-"""Stage ``braille_data``: simulate the paper's braille contacts as (depth, sim, real) sets."""
+"""Stage ``braille_data``: the paper's braille contacts as (depth, sim, real) sets.
+
+``source: surrogate`` (default) simulates every set with the surrogate DIGIT as the real
+sensor; ``source: PATH`` reads the real sets from a folder in the Tactile-Diffusion layout
+(see ``data.braille_layout``) and simulates only the classifier grid, as the paper did.
+The stage's metrics say which sets carry real and sim images (``content``).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +15,7 @@ import torch
 from pydantic import Field
 
 from tactile_bench.data.braille import build_braille_sets
+from tactile_bench.data.braille_layout import LAYOUT_CONTENT, check_braille_layout, load_layout_sets
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.pipeline.stages.base import (
@@ -16,6 +23,7 @@ from tactile_bench.pipeline.stages.base import (
     StageContext,
     StageKind,
     check_real_sensor,
+    resolve_source,
 )
 from tactile_bench.report.figures import sample_grid_png
 from tactile_bench.sensor.background import sim_background
@@ -28,8 +36,10 @@ SETS = ("finetune", "test", "classifier", "classifier_test")
 
 
 class BrailleDataConfig(StageConfig):
-    """Which characters, how many fine-tuning/test contacts, and which sensor plays "real"."""
+    """Which characters, how many fine-tuning/test contacts, and which sensor plays "real"
+    (``source: surrogate``), or a folder of real data in the Tactile-Diffusion layout."""
 
+    source: str = "surrogate"
     chars: str = Field(default="".join(CHARACTERS), min_length=2)
     n_finetune: int = Field(default=1080, ge=1)
     n_test: int = Field(default=837, ge=1)
@@ -45,6 +55,8 @@ def _check(config: BrailleDataConfig, base_dir: Path) -> None:
     if unknown:
         raise TactileBenchError(f"chars: not braille characters of the paper: {''.join(unknown)}")
     check_real_sensor(config.real_sensor)
+    if config.source != "surrogate":
+        check_braille_layout(resolve_source(config.source, base_dir))
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
@@ -52,6 +64,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     chars = tuple(config.chars)
     gel = GelSpec(size=config.image_size, oversample=config.oversample)
     bank = build_bank(chars, BrailleSpec())
+    simulated = config.source == "surrogate"
     real = SurrogateDigit.from_profile(config.real_sensor)
     sets = build_braille_sets(
         bank,
@@ -61,12 +74,20 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         real,
         seed=ctx.seed,
         chars=chars,
-        n_finetune=config.n_finetune,
-        n_test=config.n_test,
+        # with a real-data source only the classifier grid is used: keep the others minimal
+        n_finetune=config.n_finetune if simulated else len(chars),
+        n_test=config.n_test if simulated else len(chars),
         n_classifier=config.n_classifier,
-        n_classifier_test=config.n_classifier_test,
+        n_classifier_test=config.n_classifier_test if simulated else len(chars),
         progress=ctx.progress,
     )
+    content = {name: {"has_sim": True, "has_real": True} for name in SETS}
+    if not simulated:
+        root = resolve_source(config.source, ctx.recipe_dir)
+        sets = load_layout_sets(
+            root, gel, sim_background(config.image_size), sets["classifier"], ctx.seed, chars
+        )
+        content = LAYOUT_CONTENT
     outputs = {}
     for name in SETS:
         sets[name].save(ctx.directory / f"{name}.npz")
@@ -85,7 +106,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         title="braille contacts: depth | sim | surrogate real",
     )
     outputs["preview"] = "preview.png"
-    return outputs, {"real_sensor": config.real_sensor, **{name: len(sets[name]) for name in SETS}}
+    real = config.real_sensor if config.source == "surrogate" else config.source
+    return outputs, {"real_sensor": real, "content": content} | {n: len(sets[n]) for n in SETS}
 
 
 STAGE = StageKind(

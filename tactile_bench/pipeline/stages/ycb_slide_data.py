@@ -23,6 +23,7 @@ from tactile_bench.pipeline.stages.base import (
     StageContext,
     StageKind,
     check_real_sensor,
+    resolve_source,
 )
 from tactile_bench.report.figures import sample_grid_png
 from tactile_bench.sensor.depth import GelSpec
@@ -43,7 +44,7 @@ class YcbSlideConfig(StageConfig):
 
 def _check(config: YcbSlideConfig, base_dir: Path) -> None:
     if config.source != "surrogate":
-        root = _resolve(config.source, base_dir)
+        root = resolve_source(config.source, base_dir)
         if not (root / "real").is_dir():
             raise TactileBenchError(
                 f"source: {root} is not a YCB-Slide folder (expected {root / 'real'}/<object>/)"
@@ -55,17 +56,11 @@ def _check(config: YcbSlideConfig, base_dir: Path) -> None:
     check_real_sensor(config.real_sensor)
 
 
-def _resolve(source: str, base_dir: Path) -> Path:
-    """A source path as written in the recipe: absolute, or relative to the recipe's folder."""
-    path = Path(source).expanduser()
-    return path if path.is_absolute() else (base_dir / path).resolve()
-
-
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: YcbSlideConfig = ctx.config
     if config.source != "surrogate":
         pairs = load_ycb_slide_real(
-            _resolve(config.source, ctx.recipe_dir),
+            resolve_source(config.source, ctx.recipe_dir),
             gel=GelSpec(size=config.image_size),
             stride=config.stride,
             progress=ctx.progress,
