@@ -21,7 +21,7 @@ EXIT_USER_ERROR = 2
 
 # Modules that add a subcommand: each defines ``register(subparsers) -> None`` and sets
 # ``func`` on its parser. Listed, not discovered, so a command appears only when it ships.
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("tactile_bench.read.commands",)
 
 
 def _cmd_fit(ns: argparse.Namespace) -> int:
