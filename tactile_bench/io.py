@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import tempfile
@@ -43,8 +44,15 @@ def atomic_write_json(path: Path, obj: Any) -> Path:
 
 
 def atomic_torch_save(obj: Any, path: Path) -> Path:
-    """torch.save atomically."""
-    return _atomic(path, lambda tmp: torch.save(obj, tmp))
+    """torch.save atomically, and byte-for-byte reproducibly.
+
+    torch names the zip archive inside after the file it writes to; saving straight to the
+    random temporary name would make equal weights hash differently on every run (and every
+    downstream stage's cache key with them). Serialising in memory names it ``archive``.
+    """
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    return _atomic(path, lambda tmp: tmp.write_bytes(buffer.getvalue()))
 
 
 def file_sha256(path: Path, chunk: int = 1 << 20) -> str:

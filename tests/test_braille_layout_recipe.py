@@ -69,8 +69,9 @@ def test_real_row_on_the_simulated_grid_is_refused(
 ) -> None:
     recipe = _write(tmp_path, real_set="")
     assert main(["fit", str(recipe), "--run-dir", str(tmp_path / "run"), "--no-progress"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
     assert len(err) == 1 and "classify_real" in err[0] and "train_set: finetune" in err[0]
+    assert "Traceback" not in "\n".join(err)
 
 
 def test_missing_layout_folder_fails_before_work(

@@ -148,5 +148,9 @@ def test_braille_empty_and_unknown_letters(tmp_path: Path) -> None:
         load_braille_real_images(tmp_path)
     for f in (tmp_path / "real_fine_tuning" / "color" / "a").iterdir():
         f.unlink()
+    with pytest.raises(TactileBenchError, match="unpaired"):  # masks left without colour
+        load_braille_pairs(tmp_path, "all")
+    for f in (tmp_path / "real_fine_tuning" / "mask" / "a").iterdir():
+        f.unlink()
     with pytest.raises(TactileBenchError, match="no 'all' images"):
         load_braille_pairs(tmp_path, "all")

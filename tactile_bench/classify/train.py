@@ -16,9 +16,9 @@ from typing import Any, Literal
 
 import lightning as L
 import torch
-from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger, Logger
 from torch import nn
+from torch.utils.data import DataLoader
 from torchmetrics.functional.classification import (
     multiclass_accuracy,
     multiclass_confusion_matrix,
@@ -29,6 +29,7 @@ from torchmetrics.functional.classification import (
 from tactile_bench.classify.model import NUM_CLASSES
 from tactile_bench.classify.module import BrailleClassifier
 from tactile_bench.data.datamodule import ForegroundDataModule
+from tactile_bench.training import ResumableSampler, fingerprint, result_settings, resumable_fit
 
 Precision = Literal["32-true", "bf16-mixed"]
 
@@ -90,6 +91,26 @@ def _close_wandb(loggers: Sequence[Logger]) -> None:
             logger._experiment = None
 
 
+class _ResumableDataModule(ForegroundDataModule):
+    """The same shuffled batches as ForegroundDataModule, from a sampler whose position a
+    checkpoint restores (so a killed training resumes on the very next batch)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.generator = torch.Generator().manual_seed(self.seed)
+        self.sampler = ResumableSampler(len(self.train_set), self.generator, self.batch_size)
+
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(
+            self.train_set,
+            batch_size=self.batch_size,
+            sampler=self.sampler,
+            num_workers=self.num_workers,
+            generator=self.generator,
+            persistent_workers=self.num_workers > 0,
+        )
+
+
 def train_classifier(
     train_fg: torch.Tensor,
     train_labels: torch.Tensor,
@@ -105,7 +126,9 @@ def train_classifier(
     """Fit a :class:`BrailleClassifier` on foregrounds (N, C, S, S) and labels (N,).
 
     Deterministic under ``config.seed`` (weights, batch order, augmentation) on a fixed
-    number of threads. Writes ``out_dir/checkpoints/last.ckpt``; logs to ``loggers``
+    number of threads. Writes ``out_dir/checkpoints/last.ckpt`` (every
+    ``trainer_kwargs["checkpoint_every_n_steps"]`` steps and at the end) and resumes from it
+    when it exists, ending where an uninterrupted training would; logs to ``loggers``
     (default: a CSVLogger in ``out_dir``). ``trainer_kwargs`` override the Trainer's
     arguments (e.g. ``limit_train_batches``, ``accelerator``, ``enable_progress_bar``).
     Returns the model after the last epoch, in eval mode, on the CPU. With ``init`` the
@@ -115,7 +138,7 @@ def train_classifier(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     L.seed_everything(config.seed, workers=True, verbose=False)
-    datamodule = ForegroundDataModule(
+    datamodule = _ResumableDataModule(
         train=(train_fg, train_labels),
         val=val,
         batch_size=config.batch_size,
@@ -152,17 +175,28 @@ def train_classifier(
         num_sanity_val_steps=0,
         limit_val_batches=1.0 if has_val else 0,
     )
-    user = dict(trainer_kwargs or {})
-    callbacks = list(user.pop("callbacks", None) or [])
-    if user.get("enable_checkpointing", True):
-        checkpoint = ModelCheckpoint(dirpath=out_dir / "checkpoints", filename="last", save_top_k=1)
-        callbacks.insert(0, checkpoint)
-    kwargs.update(user, callbacks=callbacks)
+    kwargs.update(trainer_kwargs or {})  # enable_checkpointing=False: no checkpoints/last.ckpt
     for logger in logger_list:
         logger.log_hyperparams({"classifier": config.to_dict(), "n_train": len(train_labels)})
-    trainer = L.Trainer(**kwargs)
+    key = fingerprint(
+        "classifier",
+        config.to_dict(),
+        num_classes,
+        result_settings(kwargs),
+        train_fg,
+        train_labels,
+        init.state_dict() if init is not None else None,
+    )
     try:
-        trainer.fit(model, datamodule=datamodule)
+        resumable_fit(
+            model,
+            kwargs,
+            out_dir / "checkpoints",
+            datamodule.sampler,
+            key,
+            f"classifier training in {out_dir}",
+            datamodule=datamodule,
+        )
     finally:
         if close_loggers:
             _close_wandb(logger_list)

@@ -84,6 +84,11 @@ class PairSet:
                 raise TactileBenchError(f"PairSet: meta {k!r} has {len(v)} entries for {n} pairs")
         if not torch.isfinite(self.depth).all():
             raise TactileBenchError("PairSet: depth has NaN or infinite values")
+        if n and float(self.depth.min()) < 0:
+            raise TactileBenchError(
+                f"PairSet: negative depth ({float(self.depth.min()):.3g} mm); depth is the "
+                "gel's penetration, >= 0"
+            )
 
     def __len__(self) -> int:
         return len(self.depth)
@@ -163,9 +168,12 @@ class PairSet:
         """Read a shard written by ``save_shard``; bad files are a ``TactileBenchError``."""
         path = Path(path)
         base = load_npz(path, ("depth", "real", "real_bg_index"))
-        with np.load(path, allow_pickle=False) as z:
-            names = list(z.files)
-            extra = {k: z[k] for k in names if k == "sim" or k.startswith("meta_")}
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                names = list(z.files)
+                extra = {k: z[k] for k in names if k == "sim" or k.startswith("meta_")}
+        except Exception as exc:  # a damaged member the first read did not touch
+            raise TactileBenchError(f"{path}: corrupt or truncated ({exc})") from None
         try:
             return cls(
                 depth=torch.from_numpy(base["depth"]).float(),
@@ -224,10 +232,12 @@ def load_pairs(root: str | os.PathLike, split: str = "train", verify: bool = Fal
             sim_bg = torch.from_numpy(z["sim"])
     parts = []
     for shard in manifest["shards"]:
+        if not isinstance(shard, dict) or not {"file", "split"} <= set(shard):
+            raise TactileBenchError(f"{root / 'manifest.json'}: a shard entry lacks file/split")
         if split != "all" and shard["split"] != split:
             continue
-        path = root / shard["file"]
-        if verify and file_sha256(path) != shard["sha256"]:
+        path = root / str(shard["file"])
+        if verify and path.is_file() and file_sha256(path) != shard.get("sha256"):
             raise TactileBenchError(f"{path}: content does not match the manifest")
         parts.append(PairSet.load_shard(path, real_bg, sim_bg))
     if not parts:

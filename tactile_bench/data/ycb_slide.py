@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 import os
-import pickle
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
@@ -34,18 +33,19 @@ from typing import Any, Protocol
 
 import numpy as np
 import torch
-from PIL import Image, UnidentifiedImageError
 from scipy.spatial.transform import Rotation
 from tqdm.auto import tqdm
 
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.geometry.objects import OBJECTS, object_parts
-from tactile_bench.geometry.trajectories import Trajectory, exposed_surface, sliding_trajectories
+from tactile_bench.geometry.objects import OBJECTS
+from tactile_bench.geometry.trajectories import Trajectory
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
 from tactile_bench.sensor.depth import GelSpec, to_depth
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 from tactile_bench.sensor.optics import SimOptics
+from tactile_bench.sensor.timing import stage as timed
 
+from .images import SameSize, read_image
 from .pairs import FORMAT, PairSet, read_manifest, to_uint8, write_backgrounds
 
 DEFAULT_PAIRS = 8000  # CPU budget; the paper's corpus is 180_000 ("paper" preset)
@@ -107,6 +107,13 @@ def settle_press(
     a frame is invalid when no shift settles it, i.e. another part of the object sits behind
     the gel plane (the sensor body would collide with it, as in a scissors' handle ring).
     """
+    with timed("settle"):
+        return _settle_press(renderer, poses, press_mm, passes)
+
+
+def _settle_press(
+    renderer: MeshDepthRenderer, poses: np.ndarray, press_mm: np.ndarray, passes: int
+) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
     poses = poses.copy()
     height = renderer.render_height(poses)
     for _ in range(passes):
@@ -141,10 +148,16 @@ def _trajectory_pairs(
         if not ok.any():
             continue
         mask = torch.from_numpy(ok)
-        d = to_depth(meas_h[mask], gel)
+        with timed("sim.depth"):
+            d = to_depth(meas_h[mask], gel, inplace=True)  # [mask] is a copy of our own
         depth.append(d)
-        sim.append(to_uint8(sim_optics.render(d, sim_background, generator, gel)))
-        real.append(to_uint8(real_sensor.render_surface(true_h[mask], gel, generator)))
+        with timed("sim.optics"):
+            s = sim_optics.render(d, sim_background, generator, gel)
+        with timed("uint8"):
+            sim.append(to_uint8(s))
+        r = real_sensor.render_surface(true_h[mask], gel, generator)
+        with timed("uint8"):
+            real.append(to_uint8(r))
         poses.append(true_p[ok])
         keep.append(np.arange(k, k + len(press))[ok])
     if not depth:
@@ -170,6 +183,7 @@ def build_ycb_slide_standin(
     objects: Sequence[str] | None = None,
     config: StandinConfig | None = None,
     progress: bool = True,
+    workers: int | None = None,
 ) -> dict[str, Any]:
     """Write the stand-in corpus under ``out_dir`` and return its manifest.
 
@@ -178,8 +192,14 @@ def build_ycb_slide_standin(
     already on disk, so a killed build resumes; other settings start over. Defaults: the
     64 x 64 gel, ``SimOptics()`` over ``sim_background(size)``, the surrogate DIGIT's
     ``digit`` profile. Read it back with ``data.pairs.load_pairs(out_dir, split)``.
+    Objects are built in ``workers`` processes (default: ``torch.get_num_threads()``, so
+    ``--threads 2`` uses both cores); the corpus does not depend on it.
     """
     from tactile_bench.sensor.background import sim_background as default_sim_background
+
+    from .ycb_workers import ObjectJob, run_jobs
+
+    workers = torch.get_num_threads() if workers is None else workers
 
     if real_sensor is None:
         from tactile_bench.sensor.surrogate import SurrogateDigit
@@ -224,77 +244,48 @@ def build_ycb_slide_standin(
 
     n_frames = config.frames_per_trajectory
     total = len(config.objects) * config.n_trajectories * n_frames
-    shards, done, started = [], 0, time.perf_counter()
-    bar = tqdm(total=total, desc="ycb-slide stand-in", unit="pair", disable=not progress)
+    jobs = []
     for oi, name in enumerate(config.objects):
-        obj_seed = config.seed * 1000 + oi
-        rng = np.random.default_rng([config.seed, oi])
-        test = set(
-            rng.choice(config.n_trajectories, config.test_trajectories, replace=False).tolist()
-        )
-        parts = None
-        renderer = None
-        trajs: list[Trajectory] | None = None
-        for k in range(config.n_trajectories):
-            rel = f"shards/{name}_{k}.npz"
-            path = root / rel
-            split = "test" if k in test else "train"
-            if not (resumable and path.exists()):
-                if trajs is None:
-                    parts = object_parts(name, obj_seed)
-                    trajs = sliding_trajectories(
-                        exposed_surface(parts),
-                        name,
-                        config.n_trajectories,
-                        n_frames,
-                        length_mm=config.length_mm,
-                        press_mm=config.press_mm,
-                        noise_trans_mm=config.noise_trans_mm,
-                        noise_rot_deg=config.noise_rot_deg,
-                        tilt_deg=config.tilt_deg,
-                        seed=obj_seed,
-                    )
-                    import trimesh
-
-                    renderer = MeshDepthRenderer.from_trimesh(trimesh.util.concatenate(parts), gel)
-                traj = trajs[k]
-                gen = torch.Generator().manual_seed(obj_seed * 100 + k)
-                out = _trajectory_pairs(renderer, traj, gel, sim_optics, sim_bg, real_sensor, gen)  # type: ignore[arg-type]
-                f = out["frame"]
-                n = len(f)
-                PairSet(
-                    depth=out["depth"],
-                    real=out["real"],
-                    real_background=real_bg,
-                    real_bg_index=torch.zeros(n, dtype=torch.int64),
-                    sim=out["sim"],
-                    sim_background=to_uint8(sim_bg),
-                    meta={
-                        "object": np.full(n, oi, dtype=np.int64),
-                        "trajectory": np.full(n, oi * config.n_trajectories + k, dtype=np.int64),
-                        "frame": f.astype(np.int64),
-                        "press_mm": traj.press_mm[f],
-                        "velocity_mm_s": traj.velocity_mm_s[f],
-                        "time_s": traj.time_s[f].astype(np.float32),
-                        "pose": out["poses"].astype(np.float32),
-                    },
-                ).save_shard(path)
-                done += n
-            with np.load(path) as z:
-                n_kept = len(z["real_bg_index"])
-            shards.append(
-                {
-                    "file": rel,
-                    "object": name,
-                    "trajectory": k,
-                    "split": split,
-                    "n": n_kept,
-                    "sha256": file_sha256(path),
-                }
+        todo = [
+            k
+            for k in range(config.n_trajectories)
+            if not (resumable and (root / f"shards/{name}_{k}.npz").exists())
+        ]
+        if todo:
+            jobs.append(
+                ObjectJob(
+                    name, oi, config, gel, sim_optics, sim_bg, real_sensor, real_bg, root, todo
+                )
             )
-            bar.update(n_frames)
-        if renderer is not None:
-            renderer.close()
+    done, started = 0, time.perf_counter()
+    bar = tqdm(total=total, desc="ycb-slide stand-in", unit="pair", disable=not progress)
+    n_todo = sum(len(j.todo) for j in jobs)
+    bar.update(n_frames * (len(config.objects) * config.n_trajectories - n_todo))  # on disk
+    for built in run_jobs(jobs, workers):
+        done += sum(built.values())
+        bar.update(n_frames * len(built))
+    shards = []
+    with timed("io"):
+        for oi, name in enumerate(config.objects):
+            rng = np.random.default_rng([config.seed, oi])
+            test = set(
+                rng.choice(config.n_trajectories, config.test_trajectories, replace=False).tolist()
+            )
+            for k in range(config.n_trajectories):
+                rel = f"shards/{name}_{k}.npz"
+                path = root / rel
+                with np.load(path) as z:
+                    n_kept = len(z["real_bg_index"])
+                shards.append(
+                    {
+                        "file": rel,
+                        "object": name,
+                        "trajectory": k,
+                        "split": "test" if k in test else "train",
+                        "n": n_kept,
+                        "sha256": file_sha256(path),
+                    }
+                )
     bar.close()
     elapsed = time.perf_counter() - started
     manifest = {
@@ -320,35 +311,6 @@ def build_ycb_slide_standin(
 # ====================================================================== the real release
 #: the DIGIT camera sits this far behind the gel (YCB-Slide ``cam2gel(..., cam_dist=0.022)``)
 CAM_DIST_M = 0.022
-
-
-def read_image(path: Path, size: int | None = None) -> torch.Tensor:
-    """(3, S, S) uint8 RGB of an image, area-resized to ``size`` (the paper's cv2 INTER_AREA)."""
-    try:
-        with Image.open(path) as im:
-            im = im.convert("RGB")
-            if size is not None:
-                im = im.resize((size, size), Image.Resampling.BOX)
-            arr = np.asarray(im, dtype=np.uint8)
-    except FileNotFoundError:
-        raise TactileBenchError(f"{path}: file not found") from None
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise TactileBenchError(f"{path}: not a readable image ({exc})") from None
-    return torch.from_numpy(arr.copy()).permute(2, 0, 1)
-
-
-def read_gray(path: Path, size: int | None = None) -> np.ndarray:
-    """(S, S) float64 grey levels 0..255 of an image file, area-resized to ``size``."""
-    try:
-        with Image.open(path) as im:
-            im = im.convert("L")
-            if size is not None:
-                im = im.resize((size, size), Image.Resampling.BOX)
-            return np.asarray(im, dtype=np.float64)
-    except FileNotFoundError:
-        raise TactileBenchError(f"{path}: file not found") from None
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise TactileBenchError(f"{path}: not a readable image ({exc})") from None
 
 
 def _quat_tf(pq: np.ndarray, where: str) -> np.ndarray:
@@ -392,8 +354,11 @@ def real_gel_poses(
         data = data.item() if isinstance(data, np.ndarray) and data.dtype == object else data
     except FileNotFoundError:
         raise TactileBenchError(f"{synced_file}: file not found") from None
-    except (OSError, ValueError, pickle.UnpicklingError, EOFError) as exc:
-        raise TactileBenchError(f"{synced_file}: not a readable synced_data.npy ({exc})") from None
+    except Exception as exc:  # unpickling arbitrary bytes can raise almost anything
+        reason = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
+        raise TactileBenchError(
+            f"{synced_file}: not a readable synced_data.npy ({reason})"
+        ) from None
     try:
         poses = data["poses"]
         digit = _quat_tf(poses["DIGIT"], f"{synced_file}: poses.DIGIT")
@@ -406,11 +371,16 @@ def real_gel_poses(
         alignment = np.load(alignment_file, allow_pickle=False)
     except FileNotFoundError:
         raise TactileBenchError(f"{alignment_file}: file not found") from None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:
         raise TactileBenchError(f"{alignment_file}: not a readable .npy ({exc})") from None
-    if alignment.shape != (4, 4) or not np.isfinite(alignment).all():
+    shape = getattr(alignment, "shape", None)
+    if (
+        shape != (4, 4)
+        or not np.issubdtype(alignment.dtype, np.number)
+        or not np.isfinite(alignment).all()
+    ):
         raise TactileBenchError(
-            f"{alignment_file}: expected a finite 4 x 4 matrix, got {alignment.shape}"
+            f"{alignment_file}: expected a finite 4 x 4 matrix, got {shape or type(alignment)}"
         )
     rel = np.linalg.inv(obj) @ digit
     keep = jump_mask(rel)
@@ -481,6 +451,7 @@ def load_ycb_slide_real(
     mesh_units_m: bool | None = None,
     snap_to_surface: bool = True,
     progress: bool = False,
+    skipped: list[tuple[str, str]] | None = None,
 ) -> PairSet:
     """(sim depth, real frame) pairs of the YCB-Slide real logs under ``root``.
 
@@ -492,6 +463,8 @@ def load_ycb_slide_real(
     Frames the mocap cleanup drops are skipped; ``stride`` subsamples the 30 Hz log.
     ``background``: ``"first_frame"`` (logs start before the touch) or an image path.
     ``mesh_units_m``: YCB meshes are in metres; ``None`` guesses from the mesh size.
+    Every frame is decoded and must be RGB of one size per log. With ``skipped`` (a list),
+    unreadable or wrong frames are dropped and recorded in it (file, reason) instead of raising.
     """
     import trimesh
 
@@ -511,7 +484,9 @@ def load_ycb_slide_real(
             except Exception as exc:  # trimesh raises many types on bad files
                 raise TactileBenchError(f"{stl}: not a readable mesh ({exc})") from None
             if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-                raise TactileBenchError(f"{stl}: no triangles")
+                raise TactileBenchError(f"{stl}: no triangles (unreadable or empty mesh)")
+            if not np.isfinite(mesh.vertices).all():
+                raise TactileBenchError(f"{stl}: NaN or infinite vertex coordinates")
             in_m = mesh.scale < 5.0 if mesh_units_m is None else mesh_units_m
             vertices = mesh.vertices * (1000.0 if in_m else 1.0)
             renderer = MeshDepthRenderer(vertices, mesh.faces, gel)
@@ -537,6 +512,19 @@ def load_ycb_slide_real(
                 f"{frames_dir}: {len(frame_files)} frames but {len(gel_m)} poses in synced_data.npy"
             )
         idx = np.nonzero(keep)[0][::stride]
+        same = SameSize(f"frames of {frames_dir}")
+        frames, good = [], []
+        for i in idx:
+            try:
+                frames.append(read_image(frame_files[i], gel.size, same))
+                good.append(i)
+            except TactileBenchError as exc:
+                if skipped is None:
+                    raise
+                skipped.append((str(frame_files[i]), str(exc)))
+        if not good:
+            raise TactileBenchError(f"{frames_dir}: no readable frames")
+        idx = np.asarray(good, dtype=np.int64)
         poses = gel_m[idx] @ _FLIP
         poses[:, :3, 3] *= 1000.0
         if snap_to_surface:
@@ -544,11 +532,11 @@ def load_ycb_slide_real(
         poses[:, :3, 3] += poses[:, :3, 2] * press_mm
         height = renderer.render_height(poses)
         depths.append(to_depth(height, gel))
-        reals.append(torch.stack([read_image(frame_files[i], gel.size) for i in idx]))
+        reals.append(torch.stack(frames))
         if background == "first_frame":
-            bgs.append(read_image(frame_files[0], gel.size))
+            bgs.append(read_image(frame_files[0], gel.size, same))
         else:
-            bgs.append(read_image(Path(background), gel.size))
+            bgs.append(read_image(Path(background), gel.size, same))
         bg_idx.append(np.full(len(idx), t))
         meta["object"].append(np.full(len(idx), object_names.index(rec.object_name)))
         meta["trajectory"].append(np.full(len(idx), t))

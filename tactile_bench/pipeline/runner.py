@@ -20,25 +20,36 @@ from typing import Any
 import tactile_bench
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
+from tactile_bench.pipeline.provenance import InputHasher, run_record
 from tactile_bench.pipeline.recipe import Recipe, Stage
 from tactile_bench.pipeline.stages.base import StageContext, StageResult
+from tactile_bench.training import result_settings
 
 log = logging.getLogger("tactile_bench")
 DONE = "_done.json"
 
 
-def stage_key(recipe: Recipe, stage: Stage, inputs: dict[str, list[StageResult]]) -> str:
-    """Short hash of everything that determines a stage's outputs."""
-    return json_sha256(
-        {
-            "kind": stage.kind.name,
-            "config": stage.config.model_dump(mode="json"),
-            "inputs": {slot: [r.manifest_hash for r in rs] for slot, rs in sorted(inputs.items())},
-            "seed": recipe.seed,
-            "trainer": recipe.trainer,
-            "version": tactile_bench.__version__,
-        }
-    )[:12]
+def stage_key(
+    recipe: Recipe,
+    stage: Stage,
+    inputs: dict[str, list[StageResult]],
+    files: dict[str, str] | None = None,
+) -> str:
+    """Short hash of everything that determines a stage's outputs: its config, the content of
+    the stages and user files it reads (``files``: path -> sha256), seed, trainer, version.
+    Trainer settings that only change display or checkpoint frequency are left out, so
+    changing them does not lose a killed stage's checkpoint."""
+    doc: dict[str, Any] = {
+        "kind": stage.kind.name,
+        "config": stage.config.model_dump(mode="json"),
+        "inputs": {slot: [r.manifest_hash for r in rs] for slot, rs in sorted(inputs.items())},
+        "seed": recipe.seed,
+        "trainer": result_settings(recipe.trainer),
+        "version": tactile_bench.__version__,
+    }
+    if files:
+        doc["files"] = files
+    return json_sha256(doc)[:12]
 
 
 def read_done(directory: Path) -> StageResult | None:
@@ -105,17 +116,42 @@ def _publish(result: StageResult, names: tuple[str, ...], run_dir: Path) -> None
             tmp.replace(run_dir / src.name)
 
 
+def _run_stage(stage: Stage, ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+    """Run one stage; its errors name it, and an interrupt says what was kept."""
+    try:
+        return stage.kind.run(ctx)
+    except TactileBenchError as exc:
+        message = str(exc)
+        if not message.startswith(f"stage {stage.name}"):
+            message = f"stage {stage.name}: {message}"
+        raise TactileBenchError(message) from None
+    except KeyboardInterrupt:
+        log.warning(
+            "stage %s interrupted: finished stages and its training checkpoint (if any) are "
+            "kept in %s; rerun the same command to resume",
+            stage.name,
+            ctx.directory,
+        )
+        raise
+
+
 def run_recipe(
     recipe: Recipe, force: tuple[str, ...] = (), progress: bool = True
 ) -> list[StageResult]:
-    """Run (or reuse) every stage; returns their results in order."""
+    """Run (or reuse) every stage; returns their results in order.
+
+    Writes ``run.json``: seeds, versions, platform, the hash of the recipe and of every user
+    file the recipe names, and each stage's config and output hashes (see ``provenance``).
+    """
     for name in force:
         recipe.stage(name)  # unknown names fail before any work
     recipe.run_dir.mkdir(parents=True, exist_ok=True)
+    hasher = InputHasher(recipe.run_dir, recipe.path.parent)
     results: dict[str, StageResult] = {}
     for stage in recipe.stages:
         inputs = {slot: [results[r] for r in refs] for slot, refs in stage.inputs.items()}
-        directory = recipe.run_dir / f"{stage.name}-{stage_key(recipe, stage, inputs)}"
+        files = hasher.config_files(stage.config.model_dump(mode="json"))
+        directory = recipe.run_dir / f"{stage.name}-{stage_key(recipe, stage, inputs, files)}"
         if stage.name in force and directory.exists():
             shutil.rmtree(directory)
         result = read_done(directory)
@@ -138,27 +174,12 @@ def run_recipe(
                 previous=list(results.values()),
             )
             start = time.perf_counter()
-            outputs, metrics = stage.kind.run(ctx)
+            outputs, metrics = _run_stage(stage, ctx)
             result = _finish(stage, directory, outputs, metrics, time.perf_counter() - start)
             log.info("stage %s: done in %.1f s", stage.name, result.wall_time_s)
         _publish(result, stage.kind.publish, recipe.run_dir)
         results[stage.name] = result
     atomic_write_json(
-        recipe.run_dir / "run.json",
-        {
-            "recipe": str(recipe.path),
-            "name": recipe.name,
-            "seed": recipe.seed,
-            "stages": [
-                {
-                    "name": r.name,
-                    "kind": r.kind,
-                    "directory": r.directory.name,
-                    "wall_time_s": r.wall_time_s,
-                    "cached": r.cached,
-                }
-                for r in results.values()
-            ],
-        },
+        recipe.run_dir / "run.json", run_record(recipe, list(results.values()), hasher)
     )
     return list(results.values())

@@ -37,12 +37,19 @@ def default_real_dir() -> Path | None:
 
 def load_real_background(real_dir: Path | str | None = None) -> np.ndarray | None:
     """The real no-contact frame as float (H=320, W=240, 3) in 0..255, or None if absent."""
-    from PIL import Image
+    from tactile_bench.data.images import RGB_MODES, open_image
+    from tactile_bench.errors import TactileBenchError
 
     d = Path(real_dir) if real_dir is not None else default_real_dir()
     if d is None or not (d / BACKGROUND_FILE).exists():
         return None
-    return np.asarray(Image.open(d / BACKGROUND_FILE).convert("RGB")).astype(np.float64)
+    im = open_image(d / BACKGROUND_FILE)  # a corrupt file is a one-line error naming it
+    if im.mode not in RGB_MODES or im.size != (POLY_FRAME_W, POLY_FRAME_H):
+        raise TactileBenchError(
+            f"{d / BACKGROUND_FILE}: {im.size[0]} x {im.size[1]} {im.mode}; expected a "
+            f"{POLY_FRAME_W} x {POLY_FRAME_H} RGB DIGIT frame"
+        )
+    return np.asarray(im.convert("RGB")).astype(np.float64)
 
 
 def load_polycalib(real_dir: Path | str | None = None) -> np.ndarray | None:
@@ -50,8 +57,19 @@ def load_polycalib(real_dir: Path | str | None = None) -> np.ndarray | None:
     d = Path(real_dir) if real_dir is not None else default_real_dir()
     if d is None or not (d / POLYCALIB_FILE).exists():
         return None
-    z = np.load(d / POLYCALIB_FILE)
-    return np.stack([z["grad_r"], z["grad_g"], z["grad_b"]], 0).astype(np.float64)
+    from tactile_bench.errors import TactileBenchError
+    from tactile_bench.io import load_npz
+
+    z = load_npz(d / POLYCALIB_FILE, ("grad_r", "grad_g", "grad_b"))
+    try:
+        table = np.stack([z["grad_r"], z["grad_g"], z["grad_b"]], 0).astype(np.float64)
+    except (ValueError, TypeError) as exc:
+        raise TactileBenchError(f"{d / POLYCALIB_FILE}: grad_r/g/b differ ({exc})") from None
+    if table.ndim != 4 or table.shape[-1] != 6 or not np.isfinite(table).all():
+        raise TactileBenchError(
+            f"{d / POLYCALIB_FILE}: expected finite (bins, bins, 6) tables, got {table.shape[1:]}"
+        )
+    return table
 
 
 # ----------------------------------------------------------------------------- background

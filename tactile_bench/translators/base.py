@@ -10,6 +10,7 @@ any sensor's background is added back, so one model serves every unit.
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -19,8 +20,16 @@ from lightning.pytorch.loggers import Logger
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from torch.utils.data import DataLoader, TensorDataset
 
+import tactile_bench
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_torch_save
+from tactile_bench.training import (
+    FitReport,
+    ResumableSampler,
+    fingerprint,
+    result_settings,
+    resumable_fit,
+)
 
 CHECKPOINT_FORMAT = 1
 
@@ -32,6 +41,17 @@ class TranslatorConfig(BaseModel):
     seed: int = 0
     batch_size: int = Field(default=32, ge=1)
     max_steps: int = Field(default=200, ge=0)
+
+
+def _why_unreadable(exc: Exception) -> str:
+    """A short reason for a failed ``torch.load`` (torch's own messages run to paragraphs)."""
+    text = str(exc)
+    if "central directory" in text or "zip archive" in text or isinstance(exc, EOFError):
+        return "truncated or corrupt: not a complete torch zip archive"
+    if isinstance(exc, pickle.UnpicklingError) or "Weights only load failed" in text:
+        return "its content is not a tensors-and-plain-values checkpoint"
+    first = text.strip().splitlines()[0][:100] if text.strip() else type(exc).__name__
+    return f"corrupt or truncated? {first}"
 
 
 def foreground_to_image(foreground: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
@@ -87,33 +107,51 @@ class Translator(L.LightningModule):
         out_dir: Path,
         trainer: dict[str, Any] | None = None,
         loggers: list[Logger] | None = None,
-    ) -> None:
+    ) -> FitReport | None:
         """Fit on (depth, real foreground) pairs with a Lightning Trainer.
 
         ``trainer`` passes straight through to ``lightning.Trainer`` (accelerator,
-        devices, strategy, precision ...), so the same call scales out.
+        devices, strategy, precision ...), so the same call scales out; its extra key
+        ``checkpoint_every_n_steps`` sets how often ``out_dir/checkpoints/last.ckpt`` is
+        written. A fit that finds that checkpoint resumes from it (see ``training``).
         """
         if not self.trainable or self.config.max_steps == 0:
-            return
+            return None
         L.seed_everything(self.config.seed, workers=True, verbose=False)
+        generator = torch.Generator().manual_seed(self.config.seed)
+        sampler = ResumableSampler(len(depth), generator, self.config.batch_size)
         loader = DataLoader(
             TensorDataset(depth.float(), foreground.float()),
             batch_size=self.config.batch_size,
-            shuffle=True,
+            sampler=sampler,
             drop_last=len(depth) > self.config.batch_size,
-            generator=torch.Generator().manual_seed(self.config.seed),
+            generator=generator,
         )
         settings: dict[str, Any] = {
             "max_steps": self.config.max_steps,
             "max_epochs": -1,
             "logger": loggers if loggers is not None else False,
-            "enable_checkpointing": False,
             "enable_model_summary": False,
             "default_root_dir": str(out_dir),
             "log_every_n_steps": 10,
         }
         settings.update(trainer or {})
-        L.Trainer(**settings).fit(self, loader)
+        config = self.config.model_dump(mode="json")
+        start = self.state_dict()  # fine-tuning: the weights it starts from matter too
+        key = fingerprint(self.name, config, result_settings(settings), depth, foreground, start)
+        return resumable_fit(
+            self,
+            settings,
+            Path(out_dir) / "checkpoints",
+            sampler,
+            key,
+            f"translator {self.name!r} fit in {out_dir}",
+            train_dataloaders=loader,
+        )
+
+    def fit_diagnostics(self) -> dict[str, Any]:
+        """Figures about how the last fit went (e.g. a GAN's ``divergence``); {} by default."""
+        return {}
 
     @torch.no_grad()
     def translate(
@@ -136,6 +174,7 @@ class Translator(L.LightningModule):
         payload = {
             "translator": self.name,
             "format": CHECKPOINT_FORMAT,
+            "tactile_bench": tactile_bench.__version__,
             "config": self.config.model_dump(mode="json"),
             "state_dict": {k: v.detach().cpu() for k, v in self.state_dict().items()},
         }
@@ -143,15 +182,17 @@ class Translator(L.LightningModule):
 
     @classmethod
     def load(cls, path: str | Path) -> Translator:
-        """Load a checkpoint written by ``save``; a checkpoint of another translator is an error."""
+        """Load a checkpoint written by ``save``; anything else is a one-line error naming it."""
         path = Path(path)
         try:
             payload = torch.load(path, map_location="cpu", weights_only=True)
         except FileNotFoundError:
             raise TactileBenchError(f"{path}: translator checkpoint not found") from None
-        except Exception as exc:  # corrupt or foreign file: one line, not a traceback
+        except IsADirectoryError:
+            raise TactileBenchError(f"{path}: is a folder, not a translator checkpoint") from None
+        except Exception as exc:  # corrupt, truncated or foreign file: one line, not a traceback
             raise TactileBenchError(
-                f"{path}: not a readable translator checkpoint ({exc})"
+                f"{path}: not a readable translator checkpoint ({_why_unreadable(exc)})"
             ) from None
         if not isinstance(payload, dict) or "translator" not in payload:
             raise TactileBenchError(f"{path}: not a tactile_bench translator checkpoint")
@@ -159,10 +200,28 @@ class Translator(L.LightningModule):
             raise TactileBenchError(
                 f"{path}: checkpoint of translator {payload['translator']!r}, not {cls.name!r}"
             )
-        if payload.get("format") != CHECKPOINT_FORMAT:
-            raise TactileBenchError(
-                f"{path}: checkpoint format {payload.get('format')!r}, expected {CHECKPOINT_FORMAT}"
+        found = payload.get("format")
+        if found != CHECKPOINT_FORMAT:
+            newer = isinstance(found, int) and found > CHECKPOINT_FORMAT
+            age = "newer" if newer else "older"
+            by = f", written by tactile_bench {payload['tactile_bench']}" * (
+                "tactile_bench" in payload
             )
-        translator = cls(payload["config"])
-        translator.load_state_dict(payload["state_dict"])
+            raise TactileBenchError(
+                f"{path}: checkpoint format {found!r}{by} is {age} than the format "
+                f"{CHECKPOINT_FORMAT} tactile_bench {tactile_bench.__version__} reads"
+            )
+        try:
+            translator = cls(payload["config"])
+        except TactileBenchError as exc:
+            raise TactileBenchError(f"{path}: {exc}") from None
+        except (KeyError, TypeError) as exc:
+            raise TactileBenchError(f"{path}: checkpoint lacks a valid config ({exc})") from None
+        try:
+            translator.load_state_dict(payload["state_dict"])
+        except (KeyError, TypeError, RuntimeError) as exc:
+            first = str(exc).strip().splitlines()[0][:160]
+            raise TactileBenchError(
+                f"{path}: weights do not fit translator {cls.name!r} ({first})"
+            ) from None
         return translator

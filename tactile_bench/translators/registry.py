@@ -10,7 +10,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
 from typing import Any
+
+import torch
 
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.translators.base import Translator, TranslatorConfig
@@ -76,3 +79,28 @@ def create_translator(
 ) -> Translator:
     """Construct a registered translator from its (validated) config."""
     return translator_class(name)(config)
+
+
+def load_checkpoint(path: str | Path) -> Translator:
+    """Load a translator checkpoint of any registered translator (the file says which)."""
+    path = Path(path)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+        name = payload["translator"]
+    except FileNotFoundError:
+        raise TactileBenchError(f"{path}: translator checkpoint not found") from None
+    except Exception:  # unreadable or foreign: let the class loader word the error
+        return _Unknown.load(path)  # raises the one-line error that fits the file
+    if not isinstance(name, str):
+        raise TactileBenchError(f"{path}: not a tactile_bench translator checkpoint")
+    try:
+        kind = translator_class(name)
+    except TactileBenchError as exc:
+        raise TactileBenchError(f"{path}: {exc}") from None
+    return kind.load(path)
+
+
+class _Unknown(Translator):
+    """Stands in for "some translator" so ``Translator.load`` words errors of unreadable files."""
+
+    name = "?"

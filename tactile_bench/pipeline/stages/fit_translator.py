@@ -1,5 +1,11 @@
 """Stage ``fit_translator``: fit a registered translator on real pairs, optionally from a
-previous fit (pretrain on a corpus, then fine-tune on a fraction of the braille pool)."""
+previous fit (pretrain on a corpus, then fine-tune on a fraction of the braille pool) or from
+a checkpoint file (``init_checkpoint``: e.g. a model someone else fitted).
+
+The fit checkpoints itself in ``<stage dir>/checkpoints/last.ckpt``; a killed run resumes there.
+``metrics.json`` holds what the fit produced (held-out scores, ``divergence`` of a GAN); the
+stage's returned metrics add ``resumed_from_step``, which is not an output (an interrupted and
+an uninterrupted run write the same files)."""
 
 from __future__ import annotations
 
@@ -16,7 +22,12 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json
 from tactile_bench.metrics.image import ssim_mse
 from tactile_bench.pipeline.loggers import make_loggers
-from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.pipeline.stages.base import (
+    StageConfig,
+    StageContext,
+    StageKind,
+    resolve_source,
+)
 from tactile_bench.translators import Translator, create_translator, translator_class
 
 
@@ -27,13 +38,20 @@ class FitTranslatorConfig(StageConfig):
     translator_config: dict[str, Any] = {}
     fraction: float = Field(default=1.0, gt=0.0, le=1.0)
     eval_pairs: int = Field(default=64, ge=0)
+    init_checkpoint: str | None = None
 
 
 def _check(config: FitTranslatorConfig, base_dir: Path) -> None:
     try:
-        translator_class(config.translator).parse_config(config.translator_config)
+        kind = translator_class(config.translator)
+        kind.parse_config(config.translator_config)
     except TactileBenchError as exc:
         raise TactileBenchError(f"translator: {exc}") from None
+    if config.init_checkpoint is not None:
+        try:  # the whole file: a checkpoint of another translator or version fails here
+            kind.load(resolve_source(config.init_checkpoint, base_dir))
+        except TactileBenchError as exc:
+            raise TactileBenchError(f"init_checkpoint: {exc}") from None
 
 
 def load_fitted(ctx: StageContext, slot: str) -> Translator | None:
@@ -74,6 +92,14 @@ def _pairs(
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: FitTranslatorConfig = ctx.config
     previous = load_fitted(ctx, "init")
+    if previous is not None and config.init_checkpoint is not None:
+        raise TactileBenchError(
+            f"stage {ctx.name}: give init (an earlier stage) or init_checkpoint, not both"
+        )
+    if config.init_checkpoint is not None:
+        previous = translator_class(config.translator).load(
+            resolve_source(config.init_checkpoint, ctx.recipe_dir)
+        )
     translator = create_translator(config.translator, config.translator_config)
     if previous is not None:
         if type(previous) is not type(translator):
@@ -82,7 +108,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             )
         translator.load_state_dict(previous.state_dict())
     depth, foreground, test_depth, test_real, test_bg = _pairs(ctx, config.fraction)
-    translator.fit_pairs(
+    report = translator.fit_pairs(
         depth,
         foreground,
         ctx.directory,
@@ -91,10 +117,16 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     )
     translator.save(ctx.directory / "translator.pt")
 
+    init_from = None
+    if config.init_checkpoint is not None:
+        init_from = config.init_checkpoint
+    elif previous is not None:
+        init_from = ctx.inputs["init"][0].name
     metrics: dict[str, Any] = {
         "translator": config.translator,
         "fit_pairs": len(depth),
-        "initialised_from": ctx.inputs["init"][0].name if previous else None,
+        "initialised_from": init_from,
+        "divergence": translator.fit_diagnostics().get("divergence"),
     }
     n = min(config.eval_pairs, len(test_depth))
     if n:
@@ -103,7 +135,11 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         pred = translator.translate(test_depth[idx], bg, torch.Generator().manual_seed(ctx.seed))
         metrics["heldout"] = {"n": n, **ssim_mse(pred, test_real[idx].float())}
     atomic_write_json(ctx.directory / "metrics.json", metrics)
-    return {"translator": "translator.pt", "metrics": "metrics.json"}, metrics
+    resumed = report.resumed_from_step if report is not None else None
+    return {"translator": "translator.pt", "metrics": "metrics.json"}, {
+        **metrics,
+        "resumed_from_step": resumed,
+    }
 
 
 STAGE = StageKind(

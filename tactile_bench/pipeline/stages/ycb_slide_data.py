@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,7 @@ from tactile_bench.data.ycb_slide import (
 )
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.objects import OBJECTS
+from tactile_bench.io import atomic_write_json
 from tactile_bench.pipeline.stages.base import (
     StageConfig,
     StageContext,
@@ -28,6 +30,8 @@ from tactile_bench.pipeline.stages.base import (
 from tactile_bench.report.figures import sample_grid_png
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.surrogate import SurrogateDigit
+
+log = logging.getLogger("tactile_bench")
 
 
 class YcbSlideConfig(StageConfig):
@@ -40,6 +44,7 @@ class YcbSlideConfig(StageConfig):
     objects: list[str] = list(OBJECTS)
     real_sensor: str = "digit"
     image_size: int = Field(default=64, ge=16, le=256)
+    skip_bad: bool = Field(default=False, description="drop unreadable frames, listed in skipped")
 
 
 def _check(config: YcbSlideConfig, base_dir: Path) -> None:
@@ -58,12 +63,14 @@ def _check(config: YcbSlideConfig, base_dir: Path) -> None:
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: YcbSlideConfig = ctx.config
+    skipped: list[tuple[str, str]] | None = [] if config.skip_bad else None
     if config.source != "surrogate":
         pairs = load_ycb_slide_real(
             resolve_source(config.source, ctx.recipe_dir),
             gel=GelSpec(size=config.image_size),
             stride=config.stride,
             progress=ctx.progress,
+            skipped=skipped,
         )
         manifest = write_corpus(pairs, ctx.directory)
     else:
@@ -85,6 +92,12 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     for shard in sorted((ctx.directory / "shards").glob("*.npz")):
         outputs[f"shard_{shard.stem}"] = f"shards/{shard.name}"
     counts = {k: manifest[k] for k in ("n_train", "n_test", "frames_dropped") if k in manifest}
+    if skipped is not None:  # skip_bad: say what was left out, in the log and in a file
+        for _, why in skipped:
+            log.warning("skipped %s", why)
+        atomic_write_json(ctx.directory / "skipped.json", [list(s) for s in skipped])
+        outputs["skipped"] = "skipped.json"
+        counts["skipped"] = len(skipped)
     return outputs, counts
 
 

@@ -7,6 +7,8 @@ background-free foreground, so every foreground in 0..1 is reachable.
 
 from __future__ import annotations
 
+import logging
+import math
 from pathlib import Path
 from typing import Any
 
@@ -14,15 +16,20 @@ import torch
 from lightning.pytorch.loggers import Logger
 from pydantic import Field
 
+from tactile_bench.training import FitReport
 from tactile_bench.translators.base import Translator, TranslatorConfig
+from tactile_bench.translators.cgan.divergence import DivergenceMonitor
 from tactile_bench.translators.cgan.loss import discriminator_loss, generator_loss
 from tactile_bench.translators.cgan.torch_model import PatchDiscriminator, UNetGenerator
+
+log = logging.getLogger("tactile_bench")
 
 
 class CGANConfig(TranslatorConfig):
     """pix2pix defaults (Adam 2e-4, betas (0.5, 0.999), lambda_L1 = 100), CPU-sized networks.
 
     ``max_steps`` counts generator updates (each also makes one discriminator update).
+    ``divergence_window`` / ``divergence_factor``: see :class:`DivergenceMonitor`.
     """
 
     max_steps: int = Field(default=1000, ge=0)
@@ -35,6 +42,8 @@ class CGANConfig(TranslatorConfig):
     discriminator_layers: int = Field(default=3, ge=1)
     dropout: float = Field(default=0.5, ge=0, lt=1)
     depth_scale_mm: float = Field(default=1.0, gt=0)
+    divergence_window: int = Field(default=50, ge=2)
+    divergence_factor: float = Field(default=3.0, gt=1)
 
 
 class CGANTranslator(Translator):
@@ -55,6 +64,7 @@ class CGANTranslator(Translator):
             self.discriminator = PatchDiscriminator(
                 4, cfg.discriminator_channels, cfg.discriminator_layers
             )
+        self.monitor = DivergenceMonitor(cfg.divergence_window, cfg.divergence_factor)
 
     def condition(self, depth: torch.Tensor) -> torch.Tensor:
         return depth.float() / self.config.depth_scale_mm
@@ -70,12 +80,25 @@ class CGANTranslator(Translator):
         out_dir: Path,
         trainer: dict[str, Any] | None = None,
         loggers: list[Logger] | None = None,
-    ) -> None:
+    ) -> FitReport | None:
         """As the base class, but Lightning counts both optimisers' steps: ask for twice as many."""
         settings = {"max_steps": 2 * self.config.max_steps, **(trainer or {})}
-        super().fit_pairs(depth, foreground, out_dir, settings, loggers)
+        return super().fit_pairs(depth, foreground, out_dir, settings, loggers)
 
-    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> None:
+    def fit_diagnostics(self) -> dict[str, Any]:
+        """``divergence``: None, or where and why the fit started to diverge."""
+        return {"divergence": self.monitor.event}
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["divergence_monitor"] = self.monitor.state_dict()
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        if "divergence_monitor" in checkpoint:
+            self.monitor.load_state_dict(checkpoint["divergence_monitor"])
+
+    def training_step(
+        self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int
+    ) -> dict[str, torch.Tensor]:
         depth, foreground = batch
         g_opt, d_opt = self.optimizers()
         condition = self.condition(depth)
@@ -95,11 +118,14 @@ class CGANTranslator(Translator):
         g_opt.zero_grad()
         self.manual_backward(g_loss)
         g_opt.step()
-        self.log_dict(
-            {"d_loss": d_loss, "g_loss": g_loss, "g_adv": adversarial, "g_l1": l1},
-            prog_bar=True,
-            batch_size=len(depth),
-        )
+        losses = {"d_loss": d_loss, "g_loss": g_loss, "g_adv": adversarial, "g_l1": l1}
+        self.log_dict(losses, prog_bar=True, batch_size=len(depth))
+        values = {k: float(v.detach()) for k, v in losses.items()}
+        if all(math.isfinite(v) for v in values.values()):  # NaN/inf: the fit's guard stops it
+            news = self.monitor.update(values["d_loss"], values["g_adv"], values["g_l1"])
+            if news is not None:
+                log.warning("cgan fit diverging at step %d: %s", news["step"], news["why"])
+        return {k: v.detach() for k, v in losses.items()}
 
     def configure_optimizers(self) -> list[torch.optim.Optimizer]:
         betas = (self.config.beta1, 0.999)

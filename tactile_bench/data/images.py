@@ -1,0 +1,112 @@
+"""Reading users' image files: every problem is one line naming the file, never a traceback.
+
+Real folders are messy: a frame cut short by a full disk, a screenshot saved as RGBA, a
+grey-scale export, a frame of another camera resolution, a stray ``.DS_Store``. The readers
+here decode the whole file (so a truncated one fails now, not inside a training), check the
+channels (tactile frames are RGB; the Tactile-Diffusion depth masks are 8-bit grey) and, with
+a :class:`SameSize`, that every frame of a dataset has one size: resizing a frame of another
+size would silently mix two sensors' geometries.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from tactile_bench.errors import TactileBenchError
+
+#: colour modes that hold a 3-channel RGB frame (a palette PNG expands to RGB)
+RGB_MODES = ("RGB", "P")
+
+
+def is_hidden(path: Path) -> bool:
+    """``.DS_Store``, ``._frame.png``, ``.ipynb_checkpoints``: never data."""
+    return path.name.startswith(".")
+
+
+class SameSize:
+    """Every image of one dataset has the size of the first one read."""
+
+    def __init__(self, what: str = "frames") -> None:
+        self.what = what
+        self.size: tuple[int, int] | None = None
+        self.first: Path | None = None
+
+    def check(self, path: Path, size: tuple[int, int]) -> None:
+        if self.size is None:
+            self.size, self.first = size, path
+        elif size != self.size:
+            w, h = size
+            raise TactileBenchError(
+                f"{path}: {w} x {h} pixels, but {self.first} is {self.size[0]} x "
+                f"{self.size[1]}: all {self.what} of a dataset must share one size"
+            )
+
+
+def open_image(path: Path) -> Image.Image:
+    """The fully decoded image, or a one-line error saying what is wrong with the file."""
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            im.load()  # decode now: a truncated file fails here
+            return im.copy()
+    except FileNotFoundError:
+        raise TactileBenchError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise TactileBenchError(f"{path}: is a folder, not an image") from None
+    except Image.DecompressionBombError as exc:
+        raise TactileBenchError(f"{path}: image too large to be a sensor frame ({exc})") from None
+    except Exception as exc:  # PIL raises OSError, SyntaxError, ValueError ... on bad bytes
+        reason = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+        raise TactileBenchError(
+            f"{path}: not a readable image (corrupt or truncated? {reason})"
+        ) from None
+
+
+def _channels(im: Image.Image) -> str:
+    n = len(im.getbands())
+    return f"{n} channel{'s' if n != 1 else ''} (mode {im.mode})"
+
+
+def read_image(path: Path, size: int | None = None, same: SameSize | None = None) -> torch.Tensor:
+    """(3, S, S) uint8 RGB of a colour frame, area-resized to ``size`` (cv2 INTER_AREA)."""
+    im = open_image(path)
+    if im.mode not in RGB_MODES:
+        raise TactileBenchError(f"{path}: {_channels(im)}; a tactile frame is RGB (3 channels)")
+    if same is not None:
+        same.check(Path(path), im.size)
+    im = im.convert("RGB")
+    if size is not None:
+        im = im.resize((size, size), Image.Resampling.BOX)
+    return torch.from_numpy(np.asarray(im, dtype=np.uint8).copy()).permute(2, 0, 1)
+
+
+def read_gray(path: Path, size: int | None = None, same: SameSize | None = None) -> np.ndarray:
+    """(S, S) float64 grey levels 0..255 of an 8-bit grey image (a TACTO depth mask).
+
+    Grey stored as RGB with three equal channels is accepted; a 16-bit or colour image is
+    an error (its levels would not be the 0.03 mm steps the layout defines).
+    """
+    im = open_image(path)
+    if im.mode in ("RGB", "RGBA"):
+        arr = np.asarray(im.convert("RGB"))
+        if not (
+            np.array_equal(arr[..., 0], arr[..., 1]) and np.array_equal(arr[..., 0], arr[..., 2])
+        ):
+            raise TactileBenchError(
+                f"{path}: a colour image ({_channels(im)}) where an 8-bit grey depth mask "
+                "was expected"
+            )
+        im = im.convert("L")
+    elif im.mode != "L":
+        raise TactileBenchError(
+            f"{path}: {_channels(im)}; a depth mask here is 8-bit grey (mode L, 0.03 mm a level)"
+        )
+    if same is not None:
+        same.check(Path(path), im.size)
+    if size is not None:
+        im = im.resize((size, size), Image.Resampling.BOX)
+    return np.asarray(im, dtype=np.float64)
