@@ -4,6 +4,7 @@ from tactile_bench.pipeline.stages import (
     braille_data,
     classify,
     compare_translators,
+    diagnose,
     effect_ablation,
     fit_translator,
     report,
@@ -23,6 +24,7 @@ STAGES: dict[str, StageKind] = {
         compare_translators.STAGE,
         effect_ablation.STAGE,
         report.STAGE,
+        diagnose.STAGE,
     )
 }
 

@@ -1,0 +1,232 @@
+"""Subcommands ``diagnose`` (the gap diagnosis) and ``export-pairs`` (data in its layout)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+from tactile_bench.errors import TactileBenchError
+
+
+# ------------------------------------------------------------------------------ diagnose
+def _g(value: Any) -> str:
+    """A number to 4 significant digits; anything else as it is."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return str(value)
+    return f"{value:.4g}"
+
+
+def _summary_lines(report: dict[str, Any]) -> list[str]:
+    where = report["where"]
+    lines = [
+        f"diagnosed {report['n_pairs']} pairs ({report['split']['n_fit']} fit / "
+        f"{report['split']['n_held']} held-out) in {report['timing_s']['total']:.1f} s; "
+        f"mean squared error real - sim {where['mse']:.2f}"
+    ]
+    lines.append("where the gap lies (top part of each axis, share of the squared error):")
+    for row in where["dominant"]:
+        extra = f", intensity {row['intensity']:.2f}" if row.get("intensity") is not None else ""
+        lines.append(f"  {row['axis']:<12} {row['part']:<24} {100 * row['share']:5.1f}%{extra}")
+    lines.append("which effects explain it (greedy order; shrink of the held-out gap, 95% CI):")
+    for fit in report["ranking"] or []:
+        lines.append(
+            f"  {fit['effect']:<20} shrink {fit['shrink']:.3f} "
+            f"[{fit['ci_low']:.3f}, {fit['ci_high']:.3f}]  gap {fit['gap_before']:.4g} -> "
+            f"{fit['gap_after']:.4g}"
+        )
+    if not report["ranking"]:
+        lines.append("  (no candidate effect shrinks the gap)")
+    lines.append(f"unexplained share of the held-out gap: {report['unexplained']:.3f}")
+    if report.get("residual_flagged"):
+        lines.append("  note: a large residual remains that no candidate explains")
+    far = report.get("how_far") or {}
+    pixel = far.get("pixel") or {}
+    if pixel:
+        b, a = pixel.get("before", {}), pixel.get("after", {})
+        lines.append(
+            "how far it shrinks (held-out): "
+            + ", ".join(f"{k} {_g(b[k])} -> {_g(a[k])}" for k in b if k in a)
+        )
+    dist = far.get("distribution") or {}
+    if "kid_before" in dist:
+        lines.append(f"  KID {_g(dist['kid_before'])} -> {_g(dist.get('kid_after'))}")
+    down = far.get("downstream") or {}
+    if "skipped" in down:
+        lines.append(f"  downstream: skipped ({down['skipped']})")
+    elif down:
+        accuracies = {k: v for k, v in down.items() if k.endswith("accuracy")}
+        lines.append(
+            "  downstream accuracy on held-out real: "
+            + ", ".join(f"{k.removesuffix('_accuracy')} {_g(v)}" for k, v in accuracies.items())
+        )
+    return lines
+
+
+def _cmd_diagnose(ns: argparse.Namespace) -> int:
+    from tactile_bench.diagnose.paired import detect_layout, load_paired
+    from tactile_bench.diagnose.run import check_candidates, diagnose, stratified_split
+
+    check_candidates(ns.candidates)
+    layout, base = detect_layout(ns.paired_dir)
+    data = load_paired(ns.paired_dir, size=ns.size)
+    if ns.max_pairs is not None and len(data) > ns.max_pairs:
+        keep, _ = stratified_split(data.labels, ns.max_pairs / len(data), ns.seed)
+        data = data.subset(keep)
+    report = diagnose(
+        data,
+        ns.out,
+        downstream=not ns.no_downstream,
+        candidates=ns.candidates,
+        seed=ns.seed,
+        fit_fraction=ns.fit_fraction,
+        progress=not ns.no_progress,
+        source={"root": str(Path(base).resolve()), "layout": layout},
+    )
+    print("\n".join(_summary_lines(report)))
+    out = Path(ns.out)
+    print(f"wrote {out / 'report.json'} and {out / 'report.html'}")
+    return 0
+
+
+# ------------------------------------------------------------------------------ export-pairs
+def find_braille_set(source: str | Path, set_name: str) -> tuple[Path, tuple[str, ...] | None]:
+    """The ``<set>.npz`` of a braille_data stage dir, a run dir holding one, or the file itself."""
+    from tactile_bench.diagnose.paired import braille_stage_chars
+
+    path = Path(source)
+    if path.is_file():
+        return path, braille_stage_chars(path.parent)
+    if not path.is_dir():
+        raise TactileBenchError(f"{path}: no such file or folder")
+    if (path / f"{set_name}.npz").is_file():
+        return path / f"{set_name}.npz", braille_stage_chars(path)
+    found = sorted(p for p in path.glob(f"*/{set_name}.npz") if (p.parent / "_done.json").exists())
+    if not found:
+        raise TactileBenchError(
+            f"{path}: no braille set {set_name!r} (expected {set_name}.npz in a braille_data stage)"
+        )
+    if len(found) > 1:
+        listed = ", ".join(str(p.parent.name) for p in found)
+        raise TactileBenchError(f"{path}: several stages hold {set_name}.npz ({listed}); pass one")
+    return found[0], braille_stage_chars(found[0].parent)
+
+
+def _generate(ns: argparse.Namespace, chars: tuple[str, ...]) -> Any:
+    import torch
+    from tqdm.auto import tqdm
+
+    from tactile_bench.data.braille import draw_disjoint, render_braille_set
+    from tactile_bench.data.pairs import to_uint8
+    from tactile_bench.geometry.braille import BrailleSpec
+    from tactile_bench.geometry.contacts import finetune_test_protocol
+    from tactile_bench.sensor.background import sim_background
+    from tactile_bench.sensor.depth import GelSpec
+    from tactile_bench.sensor.heightfield import build_bank
+    from tactile_bench.sensor.optics import SimOptics
+    from tactile_bench.sensor.surrogate import SurrogateDigit
+
+    real = SurrogateDigit.from_profile(ns.profile)
+    gel = GelSpec(size=ns.size)
+    grid = finetune_test_protocol(chars)
+    (idx,) = draw_disjoint(grid.labels, (ns.generate,), len(chars), ns.seed)
+    bank = build_bank(chars, BrailleSpec())
+    optics = SimOptics(noise_std=0.0) if ns.noise_free_sim else SimOptics()
+    with tqdm(total=len(idx), desc="render pairs", unit="pair", disable=ns.no_progress) as bar:
+        return render_braille_set(
+            bank,
+            grid.index(idx),
+            gel,
+            optics,
+            to_uint8(sim_background(ns.size)),
+            real,
+            to_uint8(real.background(gel.size)),
+            torch.Generator().manual_seed(ns.seed),
+            torch.Generator().manual_seed(ns.seed + 1),
+            bar=bar,
+        )
+
+
+def _cmd_export_pairs(ns: argparse.Namespace) -> int:
+    from tactile_bench.data.braille import BrailleSet
+    from tactile_bench.diagnose.paired import from_braille_set, write_paired
+    from tactile_bench.geometry.braille import CHARACTERS
+
+    if (ns.source is None) == (ns.generate is None):
+        raise TactileBenchError("export-pairs: give a run/stage folder or .npz, or --generate N")
+    if ns.chars is not None:
+        unknown = sorted(set(ns.chars) - set(CHARACTERS))
+        if unknown or len(ns.chars) < 1:
+            raise TactileBenchError(f"--chars: not braille characters of the paper: {unknown}")
+    start = time.perf_counter()
+    if ns.generate is not None:
+        if ns.generate < 1:
+            raise TactileBenchError("--generate: must be a positive number of pairs")
+        chars = tuple(ns.chars or CHARACTERS)
+        bset = _generate(ns, chars)
+        what = f"fresh pairs (surrogate profile {ns.profile})"
+    else:
+        path, stage_chars = find_braille_set(ns.source, ns.set)
+        chars = tuple(ns.chars or stage_chars or CHARACTERS)
+        bset = BrailleSet.load(path)
+        what = f"pairs of {path}"
+    root = write_paired(ns.out, from_braille_set(bset, chars), overwrite=ns.overwrite)
+    print(f"wrote {len(bset)} {what} to {root} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+# ------------------------------------------------------------------------------ parsers
+def register(subparsers: Any) -> None:
+    """Add ``diagnose`` and ``export-pairs``."""
+    diag = subparsers.add_parser(
+        "diagnose",
+        help="diagnose the sim-to-real gap of paired data: where, which effect, how far",
+    )
+    diag.add_argument(
+        "paired_dir", metavar="PAIRED_DIR", help="paired layout or Tactile-Diffusion braille"
+    )
+    diag.add_argument(
+        "--out", required=True, metavar="OUT_DIR", help="folder for report.json and report.html"
+    )
+    diag.add_argument("--no-downstream", action="store_true", help="skip the classifier part")
+    diag.add_argument(
+        "--candidates", nargs="+", metavar="EFFECT", help="candidate effects (default: all)"
+    )
+    diag.add_argument("--seed", type=int, default=0)
+    diag.add_argument(
+        "--max-pairs", type=int, metavar="N", help="use a stratified subset of this many pairs"
+    )
+    diag.add_argument("--fit-fraction", type=float, default=0.5, help="share of pairs for fitting")
+    diag.add_argument(
+        "--size", type=int, default=64, help="image size for the Tactile-Diffusion layout"
+    )
+    diag.add_argument("--no-progress", action="store_true")
+    diag.set_defaults(func=_cmd_diagnose)
+
+    exp = subparsers.add_parser(
+        "export-pairs", help="write braille pairs in the diagnosis's paired layout"
+    )
+    exp.add_argument(
+        "source",
+        nargs="?",
+        metavar="RUN_OR_STAGE_DIR_OR_NPZ",
+        help="a run folder, a braille_data stage folder, or a set .npz",
+    )
+    exp.add_argument("--set", default="test", help="which set of a braille_data stage")
+    exp.add_argument(
+        "--out", required=True, metavar="DIR", help="folder to write (must not exist or be empty)"
+    )
+    exp.add_argument(
+        "--generate", type=int, metavar="N", help="render this many fresh pairs instead"
+    )
+    exp.add_argument("--profile", default="digit", help="surrogate profile playing 'real'")
+    exp.add_argument("--chars", help="braille characters (default: the stage's, or all 27)")
+    exp.add_argument("--size", type=int, default=64, help="image size for --generate")
+    exp.add_argument("--seed", type=int, default=0, help="seed for --generate")
+    exp.add_argument(
+        "--noise-free-sim", action="store_true", help="--generate: sim without its noise"
+    )
+    exp.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+    exp.add_argument("--no-progress", action="store_true")
+    exp.set_defaults(func=_cmd_export_pairs)

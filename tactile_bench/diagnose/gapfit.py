@@ -1,0 +1,311 @@
+"""The gap measure and the fit of a candidate's parameters to it.
+
+Gap between a candidate sim' and the real image of each pair, grey level^2 (0..255 scale):
+
+- **structure**: MSE of the images low-passed by a Gaussian of sigma 1 px;
+- **texture**: for two bands (x - G1 x, G1 x - G3 x), the squared difference of the local
+  RMS (``sqrt(G2 band^2)``), averaged over pixels and channels.
+
+Plain MSE cannot see a stochastic effect: adding camera noise to sim *raises* it. The texture
+term sees noise, texture and blur through their local power, whatever the phase. When sim'
+is stochastic, two draws a, b are rendered and the structure term is ``(La - Lr)(Lb - Lr)``,
+an unbiased estimate of ``(E[La] - Lr)^2``: the fit then matches the mean image instead of
+being penalised for its own randomness.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from tactile_bench.diagnose.candidates import (
+    CANDIDATES,
+    Base,
+    bake_geometry,
+    get_candidate,
+    render,
+)
+from tactile_bench.effects.base import gaussian_blur
+
+GAP_METRIC = (
+    "structure + texture, grey level^2 (0..255): MSE of the images low-passed to ~1 px "
+    "(2x2 area average, then Gaussian sigma 0.5 at half size) + squared difference of the "
+    "local gradient strength along and across its main direction (sqrt of the eigenvalues "
+    "of the structure tensor in 4 x 4 px windows, at full and at half size); stochastic "
+    "sims: two draws, structure unbiased for their mean image, texture averaged"
+)
+SWEEP_LEVELS = (0.02, 0.25, 0.5, 0.75, 0.98)  # unit-range values of a coordinate sweep
+DIFF_SWEEP_LEVELS = (0.1, 0.5, 0.9)  # coarser for parameters Adam refines afterwards
+MAX_WHOLE_VALUES = 100  # integer parameters with at most this many values: tried one by one
+
+
+def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    s = torch.tensor(float(sigma))
+    return gaussian_blur(x, s, s)
+
+
+def _oriented_rms(x: torch.Tensor, window: int) -> torch.Tensor:
+    """(2, N, 3, h, w): RMS gradient along and across the main direction of each window.
+
+    The eigenvalues of the structure tensor do not depend on the direction, so a smear in
+    a random direction per contact, noise or a blur compare like for like whatever their
+    phase or orientation; a smear lowers one, a blur both, noise raises both.
+    """
+    xp = F.pad(x, (0, 1, 0, 1), mode="replicate")
+    gx, gy = xp[..., :-1, 1:] - xp[..., :-1, :-1], xp[..., 1:, :-1] - xp[..., :-1, :-1]
+    jxx, jyy = F.avg_pool2d(gx * gx, window), F.avg_pool2d(gy * gy, window)
+    jxy = F.avg_pool2d(gx * gy, window)
+    half_trace = (jxx + jyy) / 2
+    radius = torch.sqrt(((jxx - jyy) / 2).square() + jxy.square() + 1e-6)
+    return torch.stack([half_trace + radius, (half_trace - radius).clamp(min=0.0)]).add(1.0).sqrt()
+
+
+def _features(x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """(low-passed image at half size, oriented gradient RMS at two scales) of (N, 3, S, S).
+
+    All but the full-size gradients run at half size: the metric costs a few ms per hundred
+    images, which is what lets every candidate be fitted in seconds.
+    """
+    low = _blur(F.avg_pool2d(x, 2), 0.5)
+    return low, [_oriented_rms(x, 4), _oriented_rms(low, 2)]
+
+
+@dataclass
+class Target:
+    """The real images of some pairs with their features, computed once."""
+
+    real: torch.Tensor
+    low: torch.Tensor
+    rms: list[torch.Tensor]
+
+    @classmethod
+    def of(cls, real: torch.Tensor) -> Target:
+        low, rms = _features(real.float())
+        return cls(real, low, rms)
+
+    def subset(self, idx: torch.Tensor) -> Target:
+        return Target(self.real[idx], self.low[idx], [r[:, idx] for r in self.rms])
+
+    def __len__(self) -> int:
+        return len(self.real)
+
+
+def pair_gap(draws: list[torch.Tensor], target: Target) -> torch.Tensor:
+    """Gap (N,) of each pair: one draw for a deterministic sim', two for a stochastic one."""
+    feats = [_features(d) for d in draws]
+    if len(draws) == 1:
+        structure = (feats[0][0] - target.low).square().mean((1, 2, 3))
+    else:
+        structure = ((feats[0][0] - target.low) * (feats[1][0] - target.low)).mean((1, 2, 3))
+    texture = torch.zeros_like(structure)
+    for k, rms_real in enumerate(target.rms):
+        rms = sum(f[1][k] for f in feats) / len(feats)
+        texture = texture + (rms - rms_real).square().sum(0).mean((1, 2, 3))
+    return structure + texture
+
+
+def _random(effects: Mapping[str, Mapping[str, object]]) -> bool:
+    """True when an effect draws randomness or has a per-pair latent (cannot be baked)."""
+    return any(CANDIDATES[n].stochastic or CANDIDATES[n].latent_grid for n in effects)
+
+
+def is_stochastic(effects: Mapping[str, Mapping[str, object]]) -> bool:
+    """True when the gap of ``effects`` needs two draws (a latent is searched, not drawn)."""
+    return any(CANDIDATES[n].stochastic and not CANDIDATES[n].latent_grid for n in effects)
+
+
+def evaluate(
+    base: Base, target: Target, effects: Mapping[str, Mapping[str, object]], seed: int
+) -> torch.Tensor:
+    """Per-pair gap (N,) of ``effects`` on ``base``: two seeded draws when stochastic, and
+    for an effect with a per-pair latent the best value of its grid, pair by pair."""
+    for name in effects:
+        grid = CANDIDATES[name].latent_grid
+        if grid and name not in base.latent:
+            gaps = [evaluate(base.with_latent(name, v), target, effects, seed) for v in grid]
+            return torch.stack(gaps).min(0).values
+    draws = 2 if is_stochastic(effects) else 1
+    images = [
+        render(base, effects, torch.Generator().manual_seed(seed + 7919 * k)) for k in range(draws)
+    ]
+    return pair_gap(images, target)
+
+
+def model_gap(
+    base: Base,
+    target: Target,
+    effects: Mapping[str, Mapping[str, object]],
+    seed: int = 0,
+    chunk: int = 256,
+) -> torch.Tensor:
+    """Per-pair gap (N,) of the candidate simulator with ``effects`` against ``target``."""
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(base), chunk):
+            idx = torch.arange(i, min(i + chunk, len(base)))
+            out.append(evaluate(base.subset(idx), target.subset(idx), effects, seed + i))
+    return torch.cat(out) if out else torch.zeros(0)
+
+
+@dataclass
+class FitBudget:
+    """How much of the fit split a fit uses, and how long it searches."""
+
+    sweep_pairs: int = 32
+    adam_pairs: int = 64
+    adam_steps: int = 25
+    lr: float = 0.06
+
+
+def fit_candidate(
+    name: str,
+    base: Base,
+    target: Target,
+    prior: Mapping[str, Mapping[str, float]] | None = None,
+    seed: int = 0,
+    budget: FitBudget | None = None,
+) -> dict[str, float]:
+    """Parameters of candidate ``name`` that minimise the gap on (a subsample of) the fit
+    pairs, with ``prior`` effects already in place (held fixed).
+
+    Coordinate sweep of every parameter over its range (from a neutral-side start, never a
+    default) -> Adam on the differentiable ones in unit coordinates, projected onto the box ->
+    a finer sweep of the non-differentiable ones -> Adam again if that moved anything.
+    """
+    cand = get_candidate(name)
+    budget = budget or FitBudget()
+    prior = dict(prior or {})
+    baked = {n: p for n, p in prior.items() if CANDIDATES[n].stage == "geometry"}
+    if baked and cand.stage != "geometry" and not _random(baked):
+        # fixed geometry before this candidate's stage: re-render it once, not every step
+        base = bake_geometry(base, baked)
+        prior = {n: p for n, p in prior.items() if n not in baked}
+    gen = torch.Generator().manual_seed(seed)
+    order = torch.randperm(len(base), generator=gen)
+    sweep_idx, adam_idx = order[: budget.sweep_pairs], order[: budget.adam_pairs]
+    u = {s.name: s.to_unit(s.start) for s in cand.searched}
+    subsets = {}
+
+    def loss(values: Mapping[str, object], idx: torch.Tensor) -> torch.Tensor:
+        params = {s.name: s.from_unit(values[s.name]) for s in cand.searched}
+        key = id(idx)
+        if key not in subsets:
+            subsets[key] = (base.subset(idx), target.subset(idx))
+        sub, tgt = subsets[key]
+        return evaluate(sub, tgt, {**prior, name: params}, seed).mean()
+
+    def sweep(names: list[str], levels: tuple[float, ...], idx: torch.Tensor) -> bool:
+        best = float(loss(u, idx))
+        moved = False
+        for n in names:
+            for level in levels:
+                trial = {**u, n: level}
+                value = float(loss(trial, idx))
+                if value < best - 1e-9:
+                    best, u[n], moved = value, level, True
+        return moved
+
+    diff = [s.name for s in cand.searched if s.differentiable]
+    whole = [s for s in cand.searched if s.integer and s.high - s.low <= MAX_WHOLE_VALUES]
+    other = [s.name for s in cand.searched if not s.differentiable and s not in whole]
+    with torch.no_grad():
+        for s in whole:  # every whole value on the sweep's pairs, the best few on more
+            levels = [s.to_unit(v) for v in range(math.ceil(s.low), math.floor(s.high) + 1)]
+            scores = sorted((float(loss({**u, s.name: lv}, sweep_idx)), lv) for lv in levels)
+            u[s.name] = min((float(loss({**u, s.name: lv}, adam_idx)), lv) for _, lv in scores[:3])[
+                1
+            ]
+        sweep(other, SWEEP_LEVELS, sweep_idx)
+        sweep(diff, DIFF_SWEEP_LEVELS, sweep_idx)  # only to leave flat or local minima
+    _adam(u, diff, lambda v: loss(v, adam_idx), budget)
+    if other:
+        # few searched values: refine on more pairs; many: on the sweep's (cost)
+        refine_idx = adam_idx if len(other) <= 2 else sweep_idx
+        with torch.no_grad():
+            moved = _refine(u, other, lambda v: float(loss(v, refine_idx)))
+        if moved and diff:
+            _adam(u, diff, lambda v: loss(v, adam_idx), budget, steps=budget.adam_steps // 2)
+    return {s.name: s.report(float(u[s.name])) for s in cand.searched}
+
+
+def _refine(u: dict[str, object], names: list[str], loss_fn: object, rounds: int = 2) -> bool:
+    """Pattern search around the sweep's best: +-half the level step, halved each round."""
+    best, moved = loss_fn(u), False
+    step = 0.5 * (SWEEP_LEVELS[1] - SWEEP_LEVELS[0])
+    for _ in range(rounds):
+        for n in names:
+            for sign in (-1.0, 1.0):
+                level = min(max(float(u[n]) + sign * step, 0.0), 1.0)
+                value = loss_fn({**u, n: level})
+                if value < best - 1e-9:
+                    best, u[n], moved = value, level, True
+        step /= 2
+    return moved
+
+
+def _adam(
+    u: dict[str, object],
+    names: list[str],
+    loss_fn: object,
+    budget: FitBudget,
+    steps: int | None = None,
+) -> None:
+    """Projected Adam on ``u[names]`` (unit coordinates, kept in [0, 1]); keeps the best."""
+    if not names:
+        return
+    z = torch.tensor([float(u[n]) for n in names], requires_grad=True)
+    opt = torch.optim.Adam([z], lr=budget.lr)
+    best_value, best_z = math.inf, z.detach().clone()
+    for _ in range(budget.adam_steps if steps is None else steps):
+        value = loss_fn({**u, **{n: z[i] for i, n in enumerate(names)}})
+        if float(value.detach()) < best_value:
+            best_value, best_z = float(value.detach()), z.detach().clone()
+        if not value.requires_grad:  # e.g. a blur too narrow to act: no gradient here
+            break
+        opt.zero_grad()
+        value.backward()
+        opt.step()
+        with torch.no_grad():
+            z.clamp_(0.0, 1.0)
+    with torch.no_grad():
+        final = float(loss_fn({**u, **{n: z[i] for i, n in enumerate(names)}}))
+    if final < best_value:
+        best_z = z.detach().clone()
+    for i, n in enumerate(names):
+        u[n] = float(best_z[i])
+
+
+def fit_jointly(
+    effects: Mapping[str, Mapping[str, float]],
+    base: Base,
+    target: Target,
+    seed: int = 0,
+    budget: FitBudget | None = None,
+) -> dict[str, dict[str, float]]:
+    """Refit the differentiable parameters of several effects together (Adam, from their
+    current values); the others stay. Effects that interact (a gain and a tone curve) then
+    share out the gap instead of each keeping what it took when it was selected."""
+    budget = budget or FitBudget()
+    searched = {n: {s.name: s for s in get_candidate(n).searched} for n in effects}
+    keys = [(n, k) for n in effects for k, s in searched[n].items() if s.differentiable]
+    u: dict[str, object] = {
+        f"{n}/{k}": searched[n][k].to_unit(float(effects[n][k])) for n, k in keys
+    }
+    idx = torch.randperm(len(base), generator=torch.Generator().manual_seed(seed))
+    sub, tgt = base.subset(idx[: budget.adam_pairs]), target.subset(idx[: budget.adam_pairs])
+
+    def loss(values: Mapping[str, object]) -> torch.Tensor:
+        params = {n: dict(p) for n, p in effects.items()}
+        for n, k in keys:
+            params[n][k] = searched[n][k].from_unit(values[f"{n}/{k}"])
+        return evaluate(sub, tgt, params, seed).mean()
+
+    _adam(u, list(u), loss, budget)
+    out = {n: dict(p) for n, p in effects.items()}
+    for n, k in keys:
+        out[n][k] = searched[n][k].report(float(u[f"{n}/{k}"]))
+    return out

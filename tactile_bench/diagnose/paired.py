@@ -1,0 +1,385 @@
+"""Paired sim/real data, the diagnosis's only input.
+
+Layout on disk (documented in docs/diagnosis.md)::
+
+    <root>/depth/<label>/<name>.png   16-bit grey, gel penetration in micrometres
+    <root>/sim/<label>/<name>.png     8-bit RGB, the simulator's image of that contact
+    <root>/real/<label>/<name>.png    8-bit RGB, the real sensor's image of it
+    <root>/background.png             the real sensor's no-contact frame
+    <root>/sim_background.png         optional: the simulator's no-contact frame
+
+``<label>/`` may be absent (unlabelled data: files directly under depth/, sim/, real/).
+Labels that are not safe folder names are encoded (``label_to_dir``): ``#`` is written as
+``number_sign``, any other unsafe character percent-encoded (``/`` -> ``%2F``).
+
+``load_paired`` also reads the Tactile-Diffusion braille release
+(``<root>/real_fine_tuning/{color,mask}/<letter>/``, ``<root>/bgs/``), which has no sim
+images: those are rendered with the noise-free simulator from its depth.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import quote, unquote
+
+import numpy as np
+import torch
+from PIL import Image, UnidentifiedImageError
+
+from tactile_bench.errors import TactileBenchError
+
+#: labels written under another folder name (the number sign is awkward in shells and URLs)
+NAMED_LABEL_DIRS: dict[str, str] = {"#": "number_sign"}
+_DIR_LABELS = {v: k for k, v in NAMED_LABEL_DIRS.items()}
+PARTS = ("depth", "sim", "real")
+UM_PER_MM = 1000.0
+LAYOUTS = ("paired", "tactile_diffusion")
+
+
+@dataclass
+class PairedData:
+    """N paired contacts, all as float tensors.
+
+    depth: (N, 1, S, S) gel penetration in mm (>= 0), at the image size S.
+    sim, real: (N, 3, S, S) in 0..255.
+    background: (3, S, S) the real sensor's no-contact frame, 0..255.
+    sim_background: (3, S, S) the simulator's no-contact frame, or None when not given.
+    labels: N label strings ("" when unlabelled); names: N file stems (for reports).
+    """
+
+    depth: torch.Tensor
+    sim: torch.Tensor
+    real: torch.Tensor
+    background: torch.Tensor
+    sim_background: torch.Tensor | None
+    labels: list[str]
+    names: list[str]
+
+    def __post_init__(self) -> None:
+        n = len(self.names)
+        if not (len(self.depth) == len(self.sim) == len(self.real) == len(self.labels) == n):
+            raise TactileBenchError("PairedData: depth, sim, real, labels and names differ in N")
+        size = tuple(self.sim.shape[-2:])
+        for what, t in (("depth", self.depth), ("real", self.real)):
+            if tuple(t.shape[-2:]) != size:
+                raise TactileBenchError(
+                    f"PairedData: {what} is {tuple(t.shape[-2:])}, sim is {size}"
+                )
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @property
+    def size(self) -> int:
+        return int(self.sim.shape[-1])
+
+    def subset(self, idx: torch.Tensor | list[int]) -> PairedData:
+        """The pairs at ``idx`` (same backgrounds)."""
+        index = torch.as_tensor(idx, dtype=torch.long)
+        return PairedData(
+            self.depth[index],
+            self.sim[index],
+            self.real[index],
+            self.background,
+            self.sim_background,
+            [self.labels[i] for i in index.tolist()],
+            [self.names[i] for i in index.tolist()],
+        )
+
+
+# ----------------------------------------------------------------------------- labels
+def label_to_dir(label: str) -> str:
+    """The folder name a label is written under (reversed by ``dir_to_label``)."""
+    if label in NAMED_LABEL_DIRS:
+        return NAMED_LABEL_DIRS[label]
+    name = quote(label, safe=" -_.+,=@")
+    if name.startswith("."):  # ".", "..", hidden folders
+        name = "%2E" + name[1:]
+    return name
+
+
+def dir_to_label(name: str) -> str:
+    """The label a folder name stands for."""
+    return _DIR_LABELS.get(name, unquote(name))
+
+
+# ----------------------------------------------------------------------------- reading
+def _open(path: Path) -> Image.Image:
+    """An image fully decoded (so a truncated file fails here, naming it)."""
+    try:
+        im = Image.open(path)
+        im.load()
+        return im
+    except FileNotFoundError:
+        raise TactileBenchError(f"{path}: file not found") from None
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError, EOFError, zlib.error) as e:
+        raise TactileBenchError(f"{path}: not a readable image ({e})") from None
+
+
+def _check_size(path: Path, im: Image.Image, size: tuple[int, int] | None) -> tuple[int, int]:
+    w, h = im.size
+    if w != h:
+        raise TactileBenchError(f"{path}: is {w} x {h}; images must be square (S x S)")
+    if size is not None and (w, h) != size:
+        raise TactileBenchError(f"{path}: is {w} x {h}, the other images are {size[0]} x {size[1]}")
+    return w, h
+
+
+def read_rgb(path: Path, size: tuple[int, int] | None = None) -> torch.Tensor:
+    """(3, S, S) float 0..255 of an 8-bit RGB PNG; other channel counts are errors."""
+    im = _open(path)
+    if im.mode == "P":
+        im = im.convert("RGB")
+    if im.mode != "RGB":
+        bands = len(im.getbands())
+        raise TactileBenchError(
+            f"{path}: has {bands} channel(s) (mode {im.mode}); expected 8-bit RGB (3 channels)"
+        )
+    _check_size(path, im, size)
+    return torch.from_numpy(np.asarray(im, dtype=np.uint8).copy()).permute(2, 0, 1).float()
+
+
+def read_depth(path: Path, size: tuple[int, int] | None = None) -> torch.Tensor:
+    """(1, S, S) float mm of a 16-bit grey PNG in micrometres."""
+    im = _open(path)
+    if im.mode not in ("I;16", "I;16B", "I;16L", "I"):
+        raise TactileBenchError(
+            f"{path}: mode {im.mode} ({len(im.getbands())} channel(s)); depth must be one "
+            "16-bit grey channel in micrometres"
+        )
+    _check_size(path, im, size)
+    arr = np.asarray(im).astype(np.float32)
+    if arr.min() < 0 or arr.max() > 65535:
+        raise TactileBenchError(f"{path}: values outside 0..65535 micrometres")
+    return torch.from_numpy(arr / UM_PER_MM)[None]
+
+
+def _listing(folder: Path) -> dict[str, tuple[str, Path]]:
+    """{relative key: (label, path)} of the PNGs in ``folder`` (one optional label level)."""
+    if not folder.is_dir():
+        raise TactileBenchError(f"{folder}: folder not found")
+    out: dict[str, tuple[str, Path]] = {}
+
+    def add(path: Path, label: str) -> None:
+        if path.name.startswith("."):
+            return
+        if path.is_dir():
+            raise TactileBenchError(f"{path}: unexpected folder (one label level only)")
+        if path.suffix.lower() != ".png":
+            raise TactileBenchError(f"{path}: not a .png file (the paired layout holds PNGs)")
+        out[str(path.relative_to(folder))] = (label, path)
+
+    for entry in sorted(folder.iterdir()):
+        if entry.is_dir() and not entry.name.startswith("."):
+            for f in sorted(entry.iterdir()):
+                add(f, dir_to_label(entry.name))
+        else:
+            add(entry, "")
+    return out
+
+
+def detect_layout(root: str | os.PathLike) -> tuple[str, Path]:
+    """("paired" | "tactile_diffusion", the folder that holds it) for ``root``."""
+    root = Path(root)
+    if not root.is_dir():
+        raise TactileBenchError(f"{root}: folder not found")
+    if (root / "depth").is_dir():
+        return "paired", root
+    for base in (root, root / "braille"):
+        if (base / "real_fine_tuning").is_dir():
+            return "tactile_diffusion", base
+    if (root / "sim").is_dir() or (root / "real").is_dir():
+        return "paired", root  # the listing then names the missing depth/ folder
+    raise TactileBenchError(
+        f"{root}: not a paired layout (depth/, sim/, real/, background.png) nor the "
+        "Tactile-Diffusion braille layout (real_fine_tuning/{color,mask}/, bgs/)"
+    )
+
+
+def _load_layout(root: Path) -> PairedData:
+    listings = {part: _listing(root / part) for part in PARTS}
+    depth_files = listings["depth"]
+    if not depth_files:
+        raise TactileBenchError(f"{root / 'depth'}: no PNG images")
+    for part in ("sim", "real"):
+        for key in depth_files:
+            if key not in listings[part]:
+                raise TactileBenchError(
+                    f"{root / part / key}: missing (unpaired {root / 'depth' / key})"
+                )
+        for key in listings[part]:
+            if key not in depth_files:
+                raise TactileBenchError(
+                    f"{root / part / key}: unpaired (no {root / 'depth' / key})"
+                )
+    first = next(iter(depth_files.values()))[1]
+    size = _check_size(first, _open(first), None)
+    depth, sim, real, labels, names = [], [], [], [], []
+    for key, (label, path) in depth_files.items():
+        depth.append(read_depth(path, size))
+        sim.append(read_rgb(root / "sim" / key, size))
+        real.append(read_rgb(root / "real" / key, size))
+        labels.append(label)
+        names.append(path.stem)
+    background = read_rgb(root / "background.png", size)
+    sim_bg_path = root / "sim_background.png"
+    sim_bg = read_rgb(sim_bg_path, size) if sim_bg_path.exists() else None
+    return PairedData(
+        torch.stack(depth), torch.stack(sim), torch.stack(real), background, sim_bg, labels, names
+    )
+
+
+def _load_tactile_diffusion(base: Path, size: int) -> PairedData:
+    """The release's fine-tuning pairs; sim rendered noise-free over the simulator's background."""
+    from tactile_bench.data.tactile_diffusion import load_braille_pairs
+    from tactile_bench.geometry.braille import CHARACTERS
+    from tactile_bench.sensor.background import sim_background
+    from tactile_bench.sensor.depth import GelSpec
+    from tactile_bench.sensor.optics import SimOptics
+
+    gel = GelSpec(size=size)
+    pairs = load_braille_pairs(base, split="all", gel=gel)
+    color = base / "real_fine_tuning" / "color"
+    names = [
+        f.stem
+        for d in sorted(p for p in color.iterdir() if p.is_dir())
+        for f in sorted(x for x in d.iterdir() if x.is_file())
+    ]
+    if len(names) != len(pairs.depth):  # the loader's own listing changed: fall back to indices
+        names = [f"{i:05d}" for i in range(len(pairs.depth))]
+    sim_bg = sim_background(size)
+    sim = SimOptics().render(pairs.depth, sim_bg, None, gel).round().clamp(0, 255)
+    return PairedData(
+        depth=pairs.depth.float(),
+        sim=sim,
+        real=pairs.real.float(),
+        background=pairs.real_background[0].float(),
+        sim_background=sim_bg,
+        labels=[CHARACTERS[int(i)] for i in pairs.meta["label"]],
+        names=names,
+    )
+
+
+def load_paired(root: str | os.PathLike, size: int = 64) -> PairedData:
+    """Read ``root`` in the paired layout or the Tactile-Diffusion braille layout.
+
+    ``size`` applies to the Tactile-Diffusion layout only (its 320 x 240 frames are
+    area-resized like the paper); paired-layout images are used at their own size.
+    """
+    layout, base = detect_layout(root)
+    if layout == "tactile_diffusion":
+        return _load_tactile_diffusion(base, size)
+    return _load_layout(base)
+
+
+# ----------------------------------------------------------------------------- writing
+def _save_png(array: np.ndarray, path: Path) -> None:
+    Image.fromarray(array).save(path, format="PNG")
+
+
+def _rgb_u8(image: torch.Tensor) -> np.ndarray:
+    return image.float().round().clamp(0, 255).to(torch.uint8).permute(1, 2, 0).numpy()
+
+
+def write_paired(root: str | os.PathLike, data: PairedData, overwrite: bool = False) -> Path:
+    """Write ``data`` in the paired layout, atomically (a temporary folder renamed into place).
+
+    Depth is rounded to whole micrometres (uint16, so at most 65.535 mm); images to uint8.
+    An existing non-empty ``root`` is an error unless ``overwrite``.
+    """
+    root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise TactileBenchError(f"{root}: exists and is not a folder")
+    if root.is_dir() and any(root.iterdir()) and not overwrite:
+        raise TactileBenchError(f"{root}: exists and is not empty (overwrite it explicitly)")
+    if len(data) == 0:
+        raise TactileBenchError(f"{root}: no pairs to write")
+    if float(data.depth.max()) * UM_PER_MM > 65535:
+        raise TactileBenchError(f"{root}: depth above 65.535 mm does not fit 16-bit micrometres")
+    keys = set()
+    for label, name in zip(data.labels, data.names, strict=True):
+        if not name or "/" in name or "\\" in name or name.startswith("."):
+            raise TactileBenchError(f"{root}: pair name {name!r} is not a safe file name")
+        if (label, name) in keys:
+            raise TactileBenchError(f"{root}: pair {label!r}/{name!r} appears twice")
+        keys.add((label, name))
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".tmp", dir=root.parent))
+    try:
+        depth_um = (data.depth[:, 0] * UM_PER_MM).round().clamp(0, 65535).numpy()
+        depth_um = depth_um.astype(np.uint16)
+        for i, (label, name) in enumerate(zip(data.labels, data.names, strict=True)):
+            sub = label_to_dir(label) if label else ""
+            for part in PARTS:
+                (tmp / part / sub).mkdir(parents=True, exist_ok=True)
+            _save_png(depth_um[i], tmp / "depth" / sub / f"{name}.png")
+            _save_png(_rgb_u8(data.sim[i]), tmp / "sim" / sub / f"{name}.png")
+            _save_png(_rgb_u8(data.real[i]), tmp / "real" / sub / f"{name}.png")
+        _save_png(_rgb_u8(data.background), tmp / "background.png")
+        if data.sim_background is not None:
+            _save_png(_rgb_u8(data.sim_background), tmp / "sim_background.png")
+        if root.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".old", dir=root.parent))
+            os.replace(root, old / root.name)
+            os.replace(tmp, root)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, root)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return root
+
+
+# ----------------------------------------------------------------------------- helpers
+def data_hash(data: PairedData) -> str:
+    """Content hash of the pairs (as 8-bit images and whole micrometres), for reports."""
+    digest = hashlib.sha256()
+    digest.update((data.depth * UM_PER_MM).round().to(torch.int32).numpy().tobytes())
+    for t in (data.sim, data.real, data.background, data.sim_background):
+        if t is not None:
+            digest.update(t.round().clamp(0, 255).to(torch.uint8).numpy().tobytes())
+    digest.update(
+        "\n".join(f"{a}/{b}" for a, b in zip(data.labels, data.names, strict=True)).encode()
+    )
+    return digest.hexdigest()
+
+
+def from_braille_set(bset: object, chars: Sequence[str]) -> PairedData:
+    """A ``data.braille.BrailleSet`` as paired data; labels are the characters ``chars``."""
+    from tactile_bench.data.braille import BrailleSet
+
+    if not isinstance(bset, BrailleSet):
+        raise TactileBenchError("from_braille_set: expected a BrailleSet")
+    labels = bset.labels.tolist()
+    if labels and max(labels) >= len(chars):
+        raise TactileBenchError(
+            f"braille set: label {max(labels)} outside the {len(chars)} characters {''.join(chars)}"
+        )
+    return PairedData(
+        depth=bset.depth.float().clamp(min=0),
+        sim=bset.sim.float(),
+        real=bset.real.float(),
+        background=bset.real_background.float(),
+        sim_background=bset.sim_background.float(),
+        labels=[chars[i] for i in labels],
+        names=[f"{i:05d}" for i in range(len(labels))],
+    )
+
+
+def braille_stage_chars(stage_dir: str | os.PathLike) -> tuple[str, ...] | None:
+    """The characters a ``braille_data`` stage was built with (its ``_done.json`` config);
+    None when the folder holds no such manifest (a bare .npz)."""
+    try:
+        chars = json.loads((Path(stage_dir) / "_done.json").read_text())["config"]["chars"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return tuple(chars) if isinstance(chars, str) else None

@@ -1,0 +1,207 @@
+"""The whole diagnosis: where the gap lies, which effect causes it, how far it shrinks.
+
+``diagnose`` splits the pairs into a fit half and a held-out half (stratified by label), so
+every effect's parameters are fitted on one and its shrink measured on the other; then it
+writes ``report.json`` and ``report.html``. It reads only the paired data.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+import tactile_bench
+from tactile_bench.diagnose.paired import PairedData, data_hash
+from tactile_bench.diagnose.report import jsonable, write_report
+from tactile_bench.diagnose.where import analyse_where
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.io import atomic_write_json
+
+log = logging.getLogger("tactile_bench")
+MIN_PAIRS = 4
+N_SAMPLES = 6
+
+
+def stratified_split(
+    labels: Sequence[str], fit_fraction: float = 0.5, seed: int = 0
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(fit, held-out) sorted index tensors; each label split in ``fit_fraction``, seeded.
+
+    A label's pairs go round(n * fraction) to the fit split; over all labels both splits
+    get at least one pair.
+    """
+    if not 0 < fit_fraction < 1:
+        raise TactileBenchError(f"fit_fraction must be in (0, 1), not {fit_fraction}")
+    n = len(labels)
+    if n < MIN_PAIRS:
+        raise TactileBenchError(f"the diagnosis needs at least {MIN_PAIRS} pairs, got {n}")
+    rng = np.random.default_rng(seed)
+    groups: dict[str, list[int]] = {}
+    for i, label in enumerate(labels):
+        groups.setdefault(label, []).append(i)
+    fit, held = [], []
+    carry = 0.0  # spreads the rounding of small groups so the overall fraction holds
+    for label in sorted(groups):
+        members = rng.permutation(groups[label])
+        want = len(members) * fit_fraction + carry
+        k = int(np.floor(want + 0.5))
+        k = min(max(k, 0), len(members))
+        carry = want - k
+        fit += members[:k].tolist()
+        held += members[k:].tolist()
+    if not fit or not held:  # tiny sets: move one pair over
+        src, dst = (fit, held) if not held else (held, fit)
+        dst.append(src.pop())
+    return torch.tensor(sorted(fit)), torch.tensor(sorted(held))
+
+
+def pick_samples(
+    data: PairedData, held: torch.Tensor, k: int = N_SAMPLES, seed: int = 0
+) -> list[int]:
+    """``k`` held-out pairs for the before/after figure, as many labels as possible."""
+    rng = np.random.default_rng(seed + 1)
+    order = rng.permutation(held.numpy())
+    picks, seen = [], set()
+    for i in order:  # first one pair per label, then fill up
+        if data.labels[i] not in seen:
+            picks.append(int(i))
+            seen.add(data.labels[i])
+        if len(picks) == k:
+            break
+    for i in order:
+        if len(picks) == k:
+            break
+        if int(i) not in picks:
+            picks.append(int(i))
+    return sorted(picks)
+
+
+def check_candidates(names: Sequence[str] | None, key: str = "--candidates") -> None:
+    """Unknown effect names are an error before any work (names only: no parameter values)."""
+    if names is None:
+        return
+    from tactile_bench.effects import EFFECTS
+
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise TactileBenchError(f"{key}: unknown effect(s) {unknown}; known: {', '.join(EFFECTS)}")
+    if not names:
+        raise TactileBenchError(f"{key}: give at least one candidate effect")
+
+
+def _effects_of(which: Any) -> dict[str, dict[str, float]]:
+    """The selected effects' parameters: the final (e.g. jointly refitted) set when the
+    "which" step reports one, else each ranking row's own fit."""
+    final = getattr(which, "selected_params", None)
+    if final:
+        return {name: dict(params) for name, params in final.items()}
+    return {fit.effect: dict(fit.params) for fit in which.ranking}
+
+
+def diagnose(
+    data: PairedData,
+    out_dir: str | Path,
+    downstream: bool = True,
+    candidates: Sequence[str] | None = None,
+    seed: int = 0,
+    fit_fraction: float = 0.5,
+    progress: bool = True,
+    source: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Run the diagnosis on ``data`` and write ``out_dir/report.{json,html}``; returns the report.
+
+    ``source`` describes the input for the report (``root``, ``layout``); the content hash
+    of the pairs is added here.
+    """
+    which_mod = importlib.import_module("tactile_bench.diagnose.which")
+    shrink_mod = importlib.import_module("tactile_bench.diagnose.shrink")
+    timing: dict[str, float] = {}
+    start = time.perf_counter()
+    fit_idx, held_idx = stratified_split(data.labels, fit_fraction, seed)
+
+    t = time.perf_counter()
+    where = analyse_where(data)
+    timing["where"] = time.perf_counter() - t
+    log.info("where: %.1f s; mean squared error %.2f", timing["where"], where.summary["mse"])
+
+    t = time.perf_counter()
+    which = which_mod.explain_gap(
+        data, fit_idx, held_idx, candidates=candidates, seed=seed, progress=progress
+    )
+    timing["which"] = time.perf_counter() - t
+    effects = _effects_of(which)
+    log.info("which: %.1f s; selected %s", timing["which"], list(effects) or "nothing")
+
+    t = time.perf_counter()
+    far = shrink_mod.how_far(
+        data, fit_idx, held_idx, effects, downstream=downstream, seed=seed, progress=progress
+    )
+    timing["how_far"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    held = data.subset(held_idx)
+    held_where = None
+    if effects:
+        after = which_mod.apply_effects(data, effects, idx=held_idx, seed=seed)
+        held_after = PairedData(
+            held.depth, after, held.real, held.background, None, held.labels, held.names
+        )
+        held_where = (analyse_where(held), analyse_where(held_after))
+    samples_idx = pick_samples(data, held_idx, seed=seed)
+    sample_images = {
+        "sim": data.sim[samples_idx],
+        "real": data.real[samples_idx],
+        "after": which_mod.apply_effects(data, effects, idx=torch.tensor(samples_idx), seed=seed)
+        if effects
+        else data.sim[samples_idx],
+    }
+    row_labels = [f"{data.labels[i] or '-'} / {data.names[i]}" for i in samples_idx]
+
+    which_dict = which.to_dict()
+    report: dict[str, Any] = {
+        "version": tactile_bench.__version__,
+        "n_pairs": len(data),
+        "size": data.size,
+        "input": {**(source or {}), "hash": data_hash(data)},
+        "split": {
+            "n_fit": len(fit_idx),
+            "n_held": len(held_idx),
+            "fit_fraction": fit_fraction,
+            "seed": seed,
+            "stratified_by": "label",
+        },
+        "where": where.summary,
+        "where_held": None
+        if held_where is None
+        else {"before": held_where[0].summary, "after": held_where[1].summary},
+        "gap_metric": which_dict.get("gap_metric", getattr(which, "gap_metric", None)),
+        "ranking": [f.to_dict() for f in which.ranking],
+        "singles": [f.to_dict() for f in which.singles],
+        "unexplained": which.unexplained,
+        "residual_flagged": which.residual_flagged,
+        "which": {  # anything else the "which" step reports
+            k: v
+            for k, v in which_dict.items()
+            if k not in ("ranking", "singles", "unexplained", "residual_flagged", "gap_metric")
+        },
+        "how_far": far,
+        "downstream": far.get("downstream"),
+        "samples": [
+            {"index": i, "label": data.labels[i], "name": data.names[i]} for i in samples_idx
+        ],
+    }
+    timing["samples"] = time.perf_counter() - t
+    t = time.perf_counter()
+    report["timing_s"] = timing
+    paths = write_report(out_dir, report, where, held_where, sample_images, row_labels)
+    timing["report"] = time.perf_counter() - t
+    timing["total"] = time.perf_counter() - start
+    atomic_write_json(paths["json"], jsonable(report))  # again, now with the report's own time
+    return report

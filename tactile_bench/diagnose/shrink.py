@@ -1,0 +1,134 @@
+"""How far the gap shrinks once the selected effects are added to the simulator.
+
+On the held-out split, three views of the same question:
+
+- **pixel**: SSIM and MSE (0..255) of sim vs real, and of sim + effects vs real, pair by pair;
+- **distribution**: KID between real and sim (+ effects) images in the features of the
+  project's own encoder (``metrics.fit_encoder``), trained on the *fit* split's real images;
+- **downstream**: a small classifier trained on the fit split's plain sim images and one on
+  sim + effects, both tested on the held-out real images (and, for scale, one trained on the
+  fit split's real images). Skipped, with the reason, when labels are missing or fewer than
+  two classes are present.
+
+Classifiers see foregrounds ``(image - no-contact frame) / 255 + 0.5`` as everywhere in the
+project: plain sim over its own frame, sim + effects over the candidate simulator's rendering
+of the no-contact frame, real over the measured one.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+
+from tactile_bench.diagnose.candidates import make_base, render_background
+from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.which import apply_effects
+from tactile_bench.metrics import fit_encoder, kid, ssim_mse
+
+ENCODER_STEPS = 300
+# training images seen per classifier (epochs = this / n_train). Few pairs of many classes:
+# with ~6 images a class, only long training with random shifts generalises at all (150
+# braille pairs: a real-trained classifier reads held-out real at 3% without, 33% with)
+CLASSIFIER_SAMPLES = 9000
+
+
+def _foreground(images: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+    return (images.float() - background.float()) / 255.0 + 0.5
+
+
+def _downstream(
+    data: PairedData,
+    fit_idx: torch.Tensor,
+    held_idx: torch.Tensor,
+    effects: Mapping[str, Mapping[str, float]],
+    seed: int,
+    progress: bool,
+) -> dict[str, Any]:
+    from tactile_bench.classify import ClassifierConfig, evaluate, train_classifier
+
+    fit_labels = [data.labels[i] for i in fit_idx.tolist()]
+    held_labels = [data.labels[i] for i in held_idx.tolist()]
+    if any(label == "" for label in fit_labels + held_labels):
+        return {"skipped": "unlabelled pairs: no downstream classifier"}
+    classes = sorted(set(fit_labels))
+    if len(classes) < 2:
+        return {"skipped": f"fewer than 2 classes in the fit split ({len(classes)})"}
+    index = {c: i for i, c in enumerate(classes)}
+    known = [i for i, label in enumerate(held_labels) if label in index]
+    if not known:
+        return {"skipped": "no held-out pair has a class seen in the fit split"}
+    y_fit = torch.tensor([index[c] for c in fit_labels])
+    y_held = torch.tensor([index[held_labels[i]] for i in known])
+    base = make_base(data, fit_idx)
+    sim_bg = base.background[0]
+    train_sets = {
+        "plain_sim_accuracy": _foreground(data.sim[fit_idx], sim_bg),
+        "sim_plus_effects_accuracy": _foreground(
+            apply_effects(data, effects, fit_idx, seed), render_background(base, effects)
+        ),
+        "real_accuracy": _foreground(data.real[fit_idx], data.background),
+    }
+    test = _foreground(data.real[held_idx[known]], data.background)
+    epochs = max(2, round(CLASSIFIER_SAMPLES / len(fit_idx)))
+    config = ClassifierConfig(
+        width=8, blocks=(1, 1, 1, 1), epochs=epochs, augment=True, shift_px=2, seed=seed
+    )
+    out: dict[str, Any] = {
+        "classes": len(classes),
+        "n_train": len(fit_idx),
+        "n_test": len(known),
+        "epochs": epochs,
+        "classifier": "ResNet topology, width 8, blocks (1, 1, 1, 1), +-2 px shifts, from scratch",
+    }
+    quiet = {"enable_checkpointing": False, "enable_progress_bar": False}
+    logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
+    for key, x in train_sets.items():
+        with tempfile.TemporaryDirectory() as tmp:
+            model = train_classifier(
+                x, y_fit, config, tmp, loggers=[], trainer_kwargs=quiet, num_classes=len(classes)
+            )
+        out[key] = evaluate(model, test, y_held, num_classes=len(classes))["accuracy"]
+    return out
+
+
+def how_far(
+    data: PairedData,
+    fit_idx: torch.Tensor,
+    held_idx: torch.Tensor,
+    effects: Mapping[str, Mapping[str, float]],
+    downstream: bool = True,
+    seed: int = 0,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Gap before and after adding ``effects``, on the held-out split (module docstring)."""
+    fit_idx = torch.as_tensor(fit_idx, dtype=torch.long)
+    held_idx = torch.as_tensor(held_idx, dtype=torch.long)
+    real, sim = data.real[held_idx].float(), data.sim[held_idx].float()
+    sim_fx = apply_effects(data, effects, held_idx, seed)
+    out: dict[str, Any] = {
+        "effects": {k: dict(v) for k, v in effects.items()},
+        "pixel": {"before": ssim_mse(sim, real), "after": ssim_mse(sim_fx, real)},
+    }
+    if len(held_idx) >= 2 and len(fit_idx) >= 2:
+        encoder = fit_encoder(data.real[fit_idx].float(), steps=ENCODER_STEPS, seed=seed)
+        f_real, f_sim, f_fx = (encoder.features(x) for x in (real, sim, sim_fx))
+        kid_before, std_before = kid(f_sim, f_real, seed=seed)
+        kid_after, std_after = kid(f_fx, f_real, seed=seed)
+        out["distribution"] = {
+            "kid_before": kid_before,
+            "kid_after": kid_after,
+            "kid_before_std": std_before,
+            "kid_after_std": std_after,
+            "encoder": f"project autoencoder, {ENCODER_STEPS} steps on the fit split's real",
+        }
+    else:
+        out["distribution"] = {"skipped": "fewer than 2 pairs in a split"}
+    if downstream:
+        out["downstream"] = _downstream(data, fit_idx, held_idx, effects, seed, progress)
+    else:
+        out["downstream"] = {"skipped": "--no-downstream"}
+    return out

@@ -1,0 +1,78 @@
+"""Stage ``diagnose``: the gap diagnosis on a braille_data stage's pairs (sim vs "real").
+
+It reads the set's depth, sim and real images only, as the command ``diagnose`` reads a
+paired folder: never the profile of the sensor that played "real".
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field
+
+from tactile_bench.data.braille import BrailleSet
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.pipeline.stages.braille_data import SETS
+
+
+class DiagnoseConfig(StageConfig):
+    """Which set to diagnose, which candidate effects, and whether to run the classifier part."""
+
+    set: str = "test"
+    downstream: bool = True
+    candidates: list[str] | None = None
+    fit_fraction: float = Field(default=0.5, gt=0.0, lt=1.0)
+    max_pairs: int | None = Field(default=None, ge=4)
+
+
+def _check(config: DiagnoseConfig, base_dir: Path) -> None:
+    from tactile_bench.diagnose.run import check_candidates
+
+    if config.set not in SETS:
+        raise TactileBenchError(f"set: {config.set!r} is not one of {', '.join(SETS)}")
+    check_candidates(config.candidates, "candidates")
+
+
+def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+    from tactile_bench.diagnose.paired import braille_stage_chars, from_braille_set
+    from tactile_bench.diagnose.run import diagnose, stratified_split
+
+    config: DiagnoseConfig = ctx.config
+    data_stage = ctx.input("data")
+    chars = braille_stage_chars(data_stage.directory) or CHARACTERS
+    data = from_braille_set(BrailleSet.load(data_stage.path(config.set)), chars)
+    if config.max_pairs is not None and len(data) > config.max_pairs:
+        keep, _ = stratified_split(data.labels, config.max_pairs / len(data), ctx.seed)
+        data = data.subset(keep)
+    report = diagnose(
+        data,
+        ctx.directory,
+        downstream=config.downstream,
+        candidates=config.candidates,
+        seed=ctx.seed,
+        fit_fraction=config.fit_fraction,
+        progress=ctx.progress,
+        source={"root": str(data_stage.directory), "layout": "braille_data", "set": config.set},
+    )
+    top = report["ranking"][0] if report["ranking"] else None
+    metrics = {
+        "n_pairs": report["n_pairs"],
+        "mse": report["where"]["mse"],
+        "top_effect": top["effect"] if top else None,
+        "top_shrink": top["shrink"] if top else None,
+        "unexplained": report["unexplained"],
+    }
+    return {"report_json": "report.json", "report_html": "report.html"}, metrics
+
+
+STAGE = StageKind(
+    name="diagnose",
+    description="gap diagnosis of a braille set: where the gap lies, which effect, how far",
+    config_model=DiagnoseConfig,
+    run=_run,
+    input_slots={"data": True},
+    check=_check,
+)

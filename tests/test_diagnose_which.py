@@ -1,0 +1,167 @@
+"""Which effect causes the gap: candidates, the gap measure, fits and greedy selection."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from tactile_bench.diagnose import gapfit
+from tactile_bench.diagnose.candidates import (
+    CANDIDATES,
+    DEFAULT_CANDIDATES,
+    get_candidate,
+    make_base,
+    render,
+)
+from tactile_bench.diagnose.gapfit import Target, fit_candidate, model_gap, pair_gap
+from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.validate import planted_pairs
+from tactile_bench.diagnose.which import WhichResult, apply_effects, explain_gap
+from tactile_bench.effects import EFFECTS
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.geometry.braille import BrailleSpec
+from tactile_bench.sensor.heightfield import build_bank
+
+SIZE = 32
+
+
+@pytest.fixture(scope="module")
+def bank():
+    return build_bank(("A", "L", "#"), BrailleSpec())
+
+
+def _pairs(bank, planted: dict, n: int = 24, seed: int = 3) -> PairedData:
+    return planted_pairs(bank, planted, n, seed, SIZE)
+
+
+def test_candidate_set_leaves_out_pose_effects_with_a_reason() -> None:
+    assert "pose_error" not in DEFAULT_CANDIDATES and "press_error" not in DEFAULT_CANDIDATES
+    assert len(DEFAULT_CANDIDATES) == 13
+    with pytest.raises(TactileBenchError, match="pose"):
+        get_candidate("pose_error")
+
+
+def test_unsearched_parameters_are_neutral_not_defaults() -> None:
+    for name, cand in CANDIDATES.items():
+        full = cand.full_params({})
+        neutral = EFFECTS[name].neutral_params()
+        for key, value in full.items():
+            if key not in cand.fixed:
+                assert value == neutral[key], (name, key)
+
+
+def test_no_effect_reproduces_the_sim_image(bank) -> None:
+    data = _pairs(bank, {"vignetting": {"corner_loss": 0.3}}, n=6)
+    torch.testing.assert_close(apply_effects(data, {}), data.sim.float())
+    # geometry effects re-render linearly: a neutral one changes nothing either
+    same = apply_effects(data, {"elastic_spread": {"sigma_mm": 0.0}})
+    torch.testing.assert_close(same, data.sim.float(), atol=1e-3, rtol=0)
+
+
+def test_candidate_reproduces_the_planted_sensor(bank) -> None:
+    planted = {"led_diffusivity": {"gain_r": 1.3, "diffusion": 0.5, "crosstalk": 0.2}}
+    data = _pairs(bank, {k: {**EFFECTS[k].neutral_params(), **v} for k, v in planted.items()})
+    fx = apply_effects(data, planted)
+    # sim, real and frames are all rounded to 8 bits: within ~1.5 grey levels of the real
+    error = (fx - data.real).abs()
+    assert float(error.max()) <= 1.6 and float(error.mean()) < 0.5
+    assert float((data.sim - data.real).abs().mean()) > 5.0
+
+
+def test_gap_sees_noise_that_mse_punishes(bank) -> None:
+    noise = {"camera_noise": {"read_noise": 8.0, "shot_gain": 0.0}}
+    data = _pairs(bank, {"camera_noise": {"read_noise": 8.0, "shot_gain": 0.0}}, n=12)
+    base, target = make_base(data), Target.of(data.real)
+    draws = [render(base, noise, torch.Generator().manual_seed(s)) for s in (101, 202)]
+    plain = pair_gap([data.sim.float()], target).mean()
+    assert pair_gap(draws, target).mean() < 0.3 * plain
+    # per-pixel MSE says the opposite: adding the right noise doubles it
+    assert ((draws[0] - data.real) ** 2).mean() > 1.5 * ((data.sim - data.real) ** 2).mean()
+
+
+@pytest.mark.parametrize(
+    ("name", "params"),
+    [
+        ("vignetting", {"corner_loss": 0.4}),
+        ("defocus_blur", {"sigma_mm": 0.5}),
+        ("gamma_white_balance", {"gamma": 1.6, "wb_r": 0.85, "wb_b": 1.2}),
+    ],
+)
+def test_fit_recovers_planted_parameters(bank, name: str, params: dict) -> None:
+    data = _pairs(bank, {name: params})
+    fitted = fit_candidate(name, make_base(data).precompute(), Target.of(data.real))
+    for key, true in params.items():
+        p = EFFECTS[name].param(key)
+        assert abs(fitted[key] - true) < 0.06 * (p.high - p.low), (key, fitted[key], true)
+
+
+def test_fit_does_not_read_parameter_defaults(bank, monkeypatch) -> None:
+    """Moving every default elsewhere in its range must not change a fit."""
+    data = _pairs(bank, {"vignetting": {"corner_loss": 0.3}}, n=12)
+    base, target = make_base(data).precompute(), Target.of(data.real)
+    before = fit_candidate("gamma_white_balance", base, target)
+    effect = EFFECTS["gamma_white_balance"]
+    moved = tuple(dataclasses.replace(p, default=p.high) for p in effect.params)
+    monkeypatch.setattr(type(effect), "params", moved)
+    monkeypatch.setattr(effect, "_index", {p.name: p for p in moved})
+    assert fit_candidate("gamma_white_balance", base, target) == before
+
+
+def test_explain_gap_names_the_planted_effect(bank) -> None:
+    data = _pairs(bank, {"vignetting": {"corner_loss": 0.45}}, n=24)
+    idx = torch.randperm(24, generator=torch.Generator().manual_seed(0))
+    result = explain_gap(
+        data,
+        idx[:12],
+        idx[12:],
+        candidates=["defocus_blur", "vignetting", "camera_noise", "led_diffusivity"],
+        progress=False,
+    )
+    assert isinstance(result, WhichResult)
+    assert result.ranking[0].effect == "vignetting"
+    top = result.ranking[0]
+    assert top.shrink > 0.95 and top.ci_low > 0.9 and top.ci_low <= top.shrink <= top.ci_high
+    assert abs(top.params["corner_loss"] - 0.45) < 0.03
+    assert not result.residual_flagged and result.unexplained < 0.05
+    assert [r.shrink for r in result.singles] == sorted(
+        (r.shrink for r in result.singles), reverse=True
+    )
+    d = result.to_dict()
+    assert d["ranking"][0]["effect"] == "vignetting" and "gap_metric" in d
+
+
+def test_explain_gap_flags_a_cause_outside_the_candidates(bank) -> None:
+    data = _pairs(bank, {"defocus_blur": {"sigma_mm": 0.6}}, n=24)
+    idx = torch.arange(24)
+    result = explain_gap(
+        data, idx[::2], idx[1::2], candidates=["vignetting", "unit_background"], progress=False
+    )
+    assert result.residual_flagged and result.unexplained > 0.5
+    assert result.ranking == [] or result.ranking[0].shrink < 0.5
+
+
+def test_explain_gap_rejects_bad_input(bank) -> None:
+    data = _pairs(bank, {}, n=6)
+    with pytest.raises(TactileBenchError, match="not a diagnosis candidate"):
+        explain_gap(data, torch.arange(3), torch.arange(3, 6), candidates=["pose_error"])
+    with pytest.raises(TactileBenchError, match="held-out"):
+        explain_gap(data, torch.arange(5), torch.tensor([5]))
+
+
+def test_model_gap_is_per_pair(bank) -> None:
+    data = _pairs(bank, {"vignetting": {"corner_loss": 0.3}}, n=6)
+    gaps = model_gap(make_base(data), Target.of(data.real), {})
+    assert gaps.shape == (6,) and bool((gaps > 0).all())
+    assert gapfit.GAP_METRIC.startswith("structure + texture")
+
+
+def test_jpeg_quality_is_found_to_the_whole_value(bank) -> None:
+    """The codec's tables change at every whole quality: only the exact one closes the gap."""
+    data = _pairs(bank, {"jpeg": {"quality": 37.0}}, n=16)
+    base, target = make_base(data).precompute(), Target.of(data.real)
+    fitted = fit_candidate("jpeg", base, target)
+    assert fitted == {"quality": 37.0}
+    near = model_gap(base, target, {"jpeg": {"quality": 39.0}}).mean()
+    assert model_gap(base, target, {"jpeg": fitted}).mean() < 0.5 * near
