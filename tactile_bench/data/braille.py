@@ -9,6 +9,7 @@ translator conditions on what TACTO gives, exactly as in the paper.
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +31,7 @@ from tactile_bench.io import atomic_write_npz, load_npz
 from tactile_bench.sensor.depth import GelSpec, render_height, to_depth
 from tactile_bench.sensor.heightfield import HeightFieldBank
 from tactile_bench.sensor.optics import SimOptics
+from tactile_bench.sensor.timing import stage as timed
 
 _POSE_KEYS = ("labels", "x_mm", "y_mm", "yaw_deg", "press_mm")
 _KEYS = ("depth", "sim", "real", "sim_background", "real_background") + tuple(
@@ -54,7 +56,7 @@ class RealSensor(Protocol):
 def _to_uint8(image: torch.Tensor) -> torch.Tensor:
     if image.dtype == torch.uint8:
         return image
-    return image.float().round().clamp(0, 255).to(torch.uint8)
+    return image.float().clamp(0, 255).round_().to(torch.uint8)  # = round, then clamp
 
 
 @dataclass
@@ -182,20 +184,38 @@ def render_braille_set(
     real_background: torch.Tensor,
     sim_generator: torch.Generator,
     real_generator: torch.Generator,
-    chunk: int = 512,
+    chunk: int = 128,
     bar: tqdm | None = None,
+    threads: int | None = None,
 ) -> BrailleSet:
-    """Render ``poses`` with the simulator (depth and image) and the real sensor, in chunks."""
-    depth, sim, real = [], [], []
-    for k in range(0, len(poses), chunk):
-        part = poses.index(slice(k, k + chunk))
-        d = to_depth(render_height(bank, part, gel), gel)
-        depth.append(d)
-        sim.append(_to_uint8(sim_optics.render(d, sim_background.float(), sim_generator, gel)))
-        r = real_sensor.render(bank, part, gel, real_generator)
-        real.append(_to_uint8(r[0] if isinstance(r, tuple) else r))
-        if bar is not None:
-            bar.update(len(part))
+    """Render ``poses`` with the simulator (depth and image) and the real sensor, in chunks.
+
+    With ``threads`` > 1 (default: torch's thread count) the contacts are split into that
+    many contiguous parts rendered in parallel Python threads (torch's kernels release the
+    GIL). Torch itself runs on one thread meanwhile (restored afterwards). Each part's
+    generators are first advanced past the parts before it (``skip_random``), so the set is
+    the one a sequential render gives, and the generators end where a sequential render
+    leaves them. Needs a real sensor with ``skip_random`` and ``RENDER_CHUNK``
+    (``SurrogateDigit``); others render sequentially.
+    """
+    threads = torch.get_num_threads() if threads is None else threads
+    unit = getattr(real_sensor, "RENDER_CHUNK", None)
+    n = len(poses)
+    skips = hasattr(real_sensor, "skip_random") and hasattr(sim_optics, "skip_random")
+    parallel = threads > 1 and unit is not None and skips and n > unit
+    args = (bank, poses, gel, sim_optics, sim_background.float(), real_sensor, chunk, bar)
+    previous = torch.get_num_threads()
+    # torch on one thread either way: on ops this small, intra-op threads cost more than they
+    # give (and busy-wait for the CPU when the machine is shared: ~10x slower measured)
+    torch.set_num_threads(1)
+    try:
+        if parallel:
+            parts = _render_parallel(args, sim_generator, real_generator, threads, unit)
+        else:
+            parts = [_render_range(args, 0, n, sim_generator, real_generator)]
+    finally:
+        torch.set_num_threads(previous)
+    depth, sim, real = ([x for p in parts for x in p[i]] for i in range(3))
     s = gel.size
     return BrailleSet(
         depth=torch.cat(depth) if depth else torch.zeros(0, 1, s, s),
@@ -206,6 +226,88 @@ def render_braille_set(
         sim_background=sim_background,
         real_background=real_background,
     )
+
+
+_Parts = tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor]]
+
+
+def _render_range(
+    args: tuple, start: int, stop: int, sim_gen: torch.Generator, real_gen: torch.Generator
+) -> _Parts:
+    """Depth, sim and real images of contacts ``start:stop``, ``chunk`` at a time."""
+    bank, poses, gel, sim_optics, sim_background, real_sensor, chunk, bar = args
+    depth, sim, real = [], [], []
+    for k in range(start, stop, chunk):
+        part = poses.index(slice(k, min(k + chunk, stop)))
+        with timed("sim.height"):
+            h = render_height(bank, part, gel)
+        with timed("sim.depth"):
+            d = to_depth(h, gel, inplace=True)
+        depth.append(d)
+        with timed("sim.optics"):
+            s = sim_optics.render(d, sim_background, sim_gen, gel)
+        with timed("uint8"):
+            sim.append(_to_uint8(s))
+        r = real_sensor.render(bank, part, gel, real_gen)
+        with timed("uint8"):
+            real.append(_to_uint8(r[0] if isinstance(r, tuple) else r))
+        if bar is not None:
+            bar.update(len(part))
+    return depth, sim, real
+
+
+def _clone(generator: torch.Generator) -> torch.Generator:
+    return torch.Generator().set_state(generator.get_state())
+
+
+def _render_parallel(
+    args: tuple,
+    sim_generator: torch.Generator,
+    real_generator: torch.Generator,
+    threads: int,
+    unit: int,
+) -> list[_Parts]:
+    """``_render_range`` over ``threads`` parts in parallel threads (see render_braille_set).
+
+    Parts start where a sequential render starts a batch of draws: on the real sensor's
+    chunks (``unit``) when ``chunk`` is a multiple of it, else on ``chunk`` boundaries. The
+    generators of part i + 1 are advanced (``skip_random``, batch by batch, ~5% of a
+    render) in this thread while the earlier parts render, so those get ~3% more contacts.
+    """
+    _, poses, gel, sim_optics, _, real_sensor, chunk, _ = args
+    n = len(poses)
+    step = unit if chunk % unit == 0 else chunk
+    cuts = [min(n, round(n * i / threads * 1.03 / step) * step) for i in range(threads)]
+    cuts = sorted(set(cuts) | {n})
+    results: list[_Parts | None] = [None] * (len(cuts) - 1)
+    errors: list[BaseException] = []
+    sim_g, real_g = _clone(sim_generator), _clone(real_generator)
+    ends: list[tuple[torch.Generator, torch.Generator]] = []
+
+    def work(i: int, gens: tuple[torch.Generator, torch.Generator]) -> None:
+        try:
+            results[i] = _render_range(args, cuts[i], cuts[i + 1], *gens)
+        except BaseException as exc:  # re-raised in the calling thread below
+            errors.append(exc)
+
+    workers = []
+    for i in range(len(cuts) - 1):
+        gens = (_clone(sim_g), _clone(real_g))
+        ends.append(gens)
+        workers.append(threading.Thread(target=work, args=(i, gens), daemon=True))
+        workers[-1].start()
+        if i < len(cuts) - 2:
+            for k in range(cuts[i], cuts[i + 1], step):  # the batches a render draws
+                m = min(step, cuts[i + 1] - k)
+                sim_optics.skip_random(m, gel, sim_g)
+                real_sensor.skip_random(m, gel, real_g)  # type: ignore[attr-defined]
+    for worker in workers:
+        worker.join()
+    if errors:
+        raise errors[0]
+    sim_generator.set_state(ends[-1][0].get_state())  # where a sequential render ends
+    real_generator.set_state(ends[-1][1].get_state())
+    return results  # type: ignore[return-value]
 
 
 def build_braille_sets(
@@ -219,7 +321,7 @@ def build_braille_sets(
     n_finetune: int = 1080,
     n_test: int = 837,
     progress: bool = True,
-    chunk: int = 512,
+    chunk: int = 128,
     n_classifier: int | None = None,
     n_classifier_test: int = 837,
 ) -> dict[str, BrailleSet]:

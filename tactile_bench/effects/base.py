@@ -34,6 +34,7 @@ import torch.nn.functional as F
 from tactile_bench.errors import TactileBenchError
 
 Stage = Literal["pose", "geometry", "optics", "camera"]
+Draw = tuple[Literal["rand", "randn"], tuple[int, ...]]  # a torch.rand / torch.randn call
 STAGES: tuple[Stage, ...] = ("pose", "geometry", "optics", "camera")
 ParamValue = torch.Tensor | float
 
@@ -92,7 +93,12 @@ class OpticalScene:
 
     def composite(self) -> torch.Tensor:
         """Light reaching the sensor; the sensor saturates at 0..255."""
-        return (self.gain * (self.background + self.delta)).clamp(0.0, 255.0)
+        light = self.background + self.delta
+        if light.requires_grad or self.gain.requires_grad or light.dim() != self.gain.dim():
+            return (self.gain * light).clamp(0.0, 255.0)
+        if torch.broadcast_shapes(light.shape, self.gain.shape) != light.shape:
+            light = light.expand(torch.broadcast_shapes(light.shape, self.gain.shape)).clone()
+        return light.mul_(self.gain).clamp_(0.0, 255.0)  # in place: same values, no copies
 
     def replace(self, **changes: torch.Tensor) -> OpticalScene:
         return replace(self, **changes)
@@ -199,6 +205,15 @@ class Effect(ABC):
         ctx: EffectContext,
     ) -> Any: ...
 
+    def draws(self, n: int, render_hw: tuple[int, int], image_hw: tuple[int, int]) -> list[Draw]:
+        """The random draws ``apply`` takes from its generator for a batch of ``n`` contacts
+        rendered at ``render_hw`` into ``image_hw`` images, in order (when not neutral and
+        rendering stochastically). Replaying them advances a generator past a batch without
+        rendering it, so a stream of batches can be split over threads with the same result
+        (``SurrogateDigit.skip_random``); tests check every effect's list against ``apply``.
+        """
+        return []
+
     def summary(self) -> str:
         """One line per parameter: name, unit, default, range, neutral, source."""
         rows = [f"{self.name} ({self.stage})"]
@@ -256,45 +271,77 @@ def gaussian_blur(
 
     Wide blurs (sigma > 4 px on both axes) run on a 2x area-downsampled copy and are
     upsampled back: same result to ~1% for a smooth field. The whole 1-D blur of each axis
-    (padding, taps, down/upsampling) is one H x H or W x W matrix, so the blur is two GEMMs,
-    ``My @ x @ Mx^T``: at these sizes (<= a few hundred px) ~15x faster on CPU than a
-    1-channel ``conv2d``, and differentiable in sigma through the matrices.
+    (padding, taps, upsampling) is one matrix, so the blur is two GEMMs, ``Ly @ x @ Lx^T``
+    (after the 2x area pooling, for a wide one): at these sizes (<= a few hundred px)
+    ~15x faster on CPU than a 1-channel ``conv2d``, and differentiable in sigma through the
+    matrices.
     """
-    my, mx = blur_matrices(x.shape[-2], x.shape[-1], sigma_x_px, sigma_y_px, max_radius)
-    return torch.matmul(my.to(x), torch.matmul(x, mx.to(x).T))
+    h, w = x.shape[-2], x.shape[-1]
+    ly, lx, pooled = _blur_factors_for(h, w, sigma_x_px, sigma_y_px, max_radius)
+    if pooled:  # pool first: the GEMMs then run on a quarter of the pixels
+        x = _area_pool(x, 2**pooled)
+    return torch.matmul(ly.to(x), torch.matmul(x, lx.to(x).T))
+
+
+def _area_pool(x: torch.Tensor, factor: int) -> torch.Tensor:
+    if x.requires_grad:
+        return F.avg_pool2d(x, factor)
+    n, c, h, w = x.shape
+    v = x.reshape(n, c, h // factor, factor, w // factor, factor)
+    out = v[:, :, :, 0, :, 0].clone()
+    for i in range(factor):
+        for j in range(factor):
+            if i or j:
+                out += v[:, :, :, i, :, j]
+    return out.div_(factor * factor)
 
 
 def blur_matrices(
     h: int, w: int, sigma_x_px: ParamValue, sigma_y_px: ParamValue, max_radius: int = 64
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(My (H, H), Mx (W, W)) of ``gaussian_blur``; cached unless a sigma is being fitted."""
+    ly, lx, pooled = _blur_factors_for(h, w, sigma_x_px, sigma_y_px, max_radius)
+    for _ in range(pooled):
+        ly = ly @ _pool_matrix(ly.shape[1] * 2)
+        lx = lx @ _pool_matrix(lx.shape[1] * 2)
+    return ly, lx
+
+
+def _blur_factors_for(
+    h: int, w: int, sigma_x_px: ParamValue, sigma_y_px: ParamValue, max_radius: int
+) -> tuple[torch.Tensor, torch.Tensor, int]:
     sx, sy = as_tensor(sigma_x_px), as_tensor(sigma_y_px)
     if sx.requires_grad or sy.requires_grad:
-        return _blur_matrices(h, w, sx, sy, max_radius)
-    return _cached_blur_matrices(h, w, float(sx), float(sy), max_radius)
+        return _blur_factors(h, w, sx, sy, max_radius)
+    return _cached_blur_factors(h, w, float(sx), float(sy), max_radius)
 
 
 @lru_cache(maxsize=64)
-def _cached_blur_matrices(
+def _cached_blur_factors(
     h: int, w: int, sx: float, sy: float, max_radius: int
-) -> tuple[torch.Tensor, torch.Tensor]:
-    return _blur_matrices(h, w, torch.tensor(sx), torch.tensor(sy), max_radius)
+) -> tuple[torch.Tensor, torch.Tensor, int]:
+    return _blur_factors(h, w, torch.tensor(sx), torch.tensor(sy), max_radius)
 
 
-def _blur_matrices(
+def _blur_factors(
     h: int, w: int, sx: torch.Tensor, sy: torch.Tensor, max_radius: int
-) -> tuple[torch.Tensor, torch.Tensor]:
+) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """(Ly (H, H'), Lx (W, W'), k): the blur is ``Ly @ pool_k(x) @ Lx^T``, pool_k the
+    2^k x 2^k area average (H' = H / 2^k)."""
     wide = float(sx.detach()) > 4 and float(sy.detach()) > 4 and min(h, w) >= 16
     if wide and h % 2 == 0 and w % 2 == 0:
         # the 2x2 box already blurs by sqrt(1/12) px (at full res); take it off
         sx2 = torch.sqrt((sx**2 - 1 / 12).clamp(min=1e-6)) / 2
         sy2 = torch.sqrt((sy**2 - 1 / 12).clamp(min=1e-6)) / 2
-        my, mx = _blur_matrices(h // 2, w // 2, sx2, sy2, max_radius)
-        up_y, up_x = _upsample_matrix(h), _upsample_matrix(w)
-        return up_y @ my @ _pool_matrix(h), up_x @ mx @ _pool_matrix(w)
+        ly, lx, k = _blur_factors(h // 2, w // 2, sx2, sy2, max_radius)
+        return _upsample_matrix(h) @ ly, _upsample_matrix(w) @ lx, k + 1
     rx = min(max_radius, max(1, math.ceil(3.0 * float(sx.detach()))), w - 1)
     ry = min(max_radius, max(1, math.ceil(3.0 * float(sy.detach()))), h - 1)
-    return _conv_matrix(h, gaussian_kernel1d(sy, ry)), _conv_matrix(w, gaussian_kernel1d(sx, rx))
+    return (
+        _conv_matrix(h, gaussian_kernel1d(sy, ry)),
+        _conv_matrix(w, gaussian_kernel1d(sx, rx)),
+        0,
+    )
 
 
 def _conv_matrix(n: int, k: torch.Tensor) -> torch.Tensor:
@@ -375,3 +422,11 @@ def surface_gradient(height: torch.Tensor, ctx: EffectContext) -> tuple[torch.Te
 
 def randn(shape: tuple[int, ...], generator: torch.Generator | None) -> torch.Tensor:
     return torch.randn(shape, generator=generator, dtype=torch.float32)
+
+
+def replay_draws(draws: list[Draw], generator: torch.Generator) -> None:
+    """Take ``draws`` from ``generator`` and discard them (see ``Effect.draws``)."""
+    for kind, shape in draws:
+        (torch.rand if kind == "rand" else torch.randn)(
+            shape, generator=generator, dtype=torch.float32
+        )

@@ -15,6 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from tactile_bench.effects.base import (
+    Draw,
     Effect,
     EffectContext,
     Param,
@@ -51,6 +52,9 @@ class SurfaceTexture(Effect):
         Param("roughness_corr_mm", "mm", 0.1, 0.02, 1.0, 0.1, _ra, "roughness correlation"),
     )
     differentiable = ("bead_amp_mm", "terrace", "roughness_mm")
+
+    def draws(self, n: int, render_hw: tuple[int, int], image_hw: tuple[int, int]) -> list[Draw]:
+        return [("rand", (n,)), ("randn", (n, 1, *render_hw))]
 
     def _apply(
         self,
@@ -91,7 +95,8 @@ class SurfaceTexture(Effect):
         # terraces: steps of one layer measured down from the block's top
         layer = scalar(p["layer_mm"])
         top = x.detach().amax(dim=(2, 3), keepdim=True)
-        steps = torch.sin((top - x) * (2 * math.pi / layer))
+        steps = (top - x).mul_(2 * math.pi / layer)
+        steps = steps.sin() if steps.requires_grad else steps.sin_()
         # micro-roughness: white noise low-passed to the correlation length, unit RMS
         dx, dy = ctx.mm_per_px(x)
         corr = scalar(p["roughness_corr_mm"])
@@ -169,6 +174,9 @@ class ShearSmear(Effect):
     params = (Param("smear_mm", "mm", 0.1, 0.0, 1.5, 0.0, _src, "slip path length"),)
     differentiable = ("smear_mm",)
     steps = 7
+
+    def draws(self, n: int, render_hw: tuple[int, int], image_hw: tuple[int, int]) -> list[Draw]:
+        return [("rand", (n,))]
 
     def _apply(
         self,

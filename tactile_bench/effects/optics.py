@@ -112,17 +112,19 @@ def fitted_response_image(
     c1, s1 = gx / r, gy / r
     harms = [None]  # None stands for the constant harmonic (skips a multiply by ones)
     ck, sk = c1, s1
-    for _ in range(N_HARM):
+    for k in range(N_HARM):
         harms += [ck, sk]
-        ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
+        if k < N_HARM - 1:  # the next harmonic, if one is used
+            ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
     out = contact[:, None] * fields[0]
     k, tj = 1, t
-    for _ in range(N_MAG):
+    for j in range(N_MAG):
         for hk in harms:
             f = tj if hk is None else tj * hk
             out = out.addcmul_(f[:, None], fields[k])  # in place: no (N, 3, H, W) temporaries
             k += 1
-        tj = tj * t
+        if j < N_MAG - 1:
+            tj = tj * t
     return out
 
 
@@ -155,7 +157,8 @@ class OpticalResponse(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> OpticalScene:
-        real = per_sub_batch(lambda z: _real_response(z, ctx), x.height)
+        # 8 images a pass: the 22 feature maps then stay in cache
+        real = per_sub_batch(lambda z: _real_response(z, ctx), x.height, size=8)
         if not isinstance(p["blend"], torch.Tensor) and float(p["blend"]) == 1.0:
             return x.replace(delta=real)  # the simulator's shading is replaced outright
         blend = as_tensor(p["blend"])
@@ -229,8 +232,8 @@ class Shadows(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> OpticalScene:
-        shadow = per_sub_batch(lambda z: self._shadow(z, p, ctx), x.height)  # (N, 3, H, W)
-        return x.replace(gain=x.gain * (1 - as_tensor(p["strength"]) * shadow))
+        shadow = per_sub_batch(lambda z: self._shadow(z, p, ctx), x.height, size=16)
+        return x.replace(gain=x.gain * (1 - as_tensor(p["strength"]) * shadow))  # (N, 3, H, W)
 
     def _shadow(
         self, z: torch.Tensor, p: Mapping[str, ParamValue], ctx: EffectContext
@@ -245,19 +248,39 @@ class Shadows(Effect):
         pad = math.ceil(reach / min(dx, dy)) + 1
         zp = F.pad(z, (pad, pad, pad, pad), mode="replicate")
         h, w = z.shape[-2:]
+        soft = p["softness_mm"]
+        grad = (
+            z.requires_grad
+            or isinstance(tan_el, torch.Tensor)
+            or (isinstance(soft, torch.Tensor) and soft.requires_grad)
+        )
         masks = []
-        for az in LED_AZIMUTH_DEG:
+        if not grad:  # write each LED's running max into its channel, no temporaries
+            occ = z.new_empty(z.shape[0], len(LED_AZIMUTH_DEG), h, w)
+            tmp = torch.empty_like(z)
+        for led, az in enumerate(LED_AZIMUTH_DEG):
             a = math.radians(az)
             sight = None  # highest rise of the surface above the line of sight to this LED
+            seen = set()
             for k in range(1, self.steps + 1):
                 t = reach * k / self.steps
                 i, j = round(t * math.sin(a) / dy), round(t * math.cos(a) / dx)
+                if (i, j) in seen:  # the same pixel again: the same term of the max
+                    continue
+                seen.add((i, j))
                 ahead = zp[..., pad + i : pad + i + h, pad + j : pad + j + w]
                 run = math.hypot(i * dy, j * dx)  # the distance actually sampled
-                sight = _running_max(sight, ahead - run * tan_el)
+                if grad:
+                    sight = _running_max(sight, ahead - run * tan_el)
+                elif sight is None:
+                    sight = torch.sub(ahead, run * tan_el, out=occ[:, led : led + 1])
+                else:
+                    torch.maximum(sight, torch.sub(ahead, run * tan_el, out=tmp), out=sight)
             masks.append(sight)
-        occ = torch.cat(masks, 1) - z
-        return (occ / as_tensor(p["softness_mm"])).clamp(0.0, 1.0)
+        if grad:
+            occ = torch.cat(masks, 1) - z
+            return (occ / as_tensor(p["softness_mm"])).clamp(0.0, 1.0)
+        return occ.sub_(z).div_(scalar(p["softness_mm"])).clamp_(0.0, 1.0)
 
 
 def _running_max(acc: torch.Tensor | None, x: torch.Tensor) -> torch.Tensor:

@@ -9,6 +9,7 @@ from typing import Any
 import torch
 
 from tactile_bench.effects.base import (
+    Draw,
     Effect,
     EffectContext,
     Param,
@@ -45,6 +46,9 @@ class PoseError(Effect):
     )
     differentiable = tuple(p.name for p in params)
 
+    def draws(self, n: int, render_hw: tuple[int, int], image_hw: tuple[int, int]) -> list[Draw]:
+        return [("randn", (n,))] * 3
+
     def _apply(
         self,
         x: Any,
@@ -53,7 +57,7 @@ class PoseError(Effect):
         ctx: EffectContext,
     ) -> Any:
         n = len(x.labels)
-        zx, zy, zt = (randn((n,), generator) for _ in range(3))
+        zx, zy, zt = (randn((n,), generator) for _ in range(3))  # as in ``draws``
         if not ctx.stochastic:
             zx, zy, zt = zx * 0, zy * 0, zt * 0
         dx = as_tensor(p["offset_x_mm"]) + as_tensor(p["jitter_mm"]) * zx
@@ -82,6 +86,9 @@ class PressDepthError(Effect):
         Param("depth_jitter_mm", "mm", 0.05, 0.0, 0.3, 0.0, _src, "per-contact depth std"),
     )
     differentiable = tuple(p.name for p in params)
+
+    def draws(self, n: int, render_hw: tuple[int, int], image_hw: tuple[int, int]) -> list[Draw]:
+        return [("randn", (n,))]
 
     def _apply(
         self,

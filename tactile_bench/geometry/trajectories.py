@@ -16,7 +16,8 @@ pressed by ``press_mm`` (z offset); the dataset builder settles the press exactl
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,6 +82,25 @@ class Surface:
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
 
 
+@contextmanager
+def _seeded_trimesh_random(seed: int = 0) -> Iterator[None]:
+    """Seed trimesh's shared random generator for the duration.
+
+    ``contains_points`` re-casts the rays whose hit counts disagree (grazing an edge) in a
+    direction drawn from trimesh's shared, OS-seeded generator, so without this the exposed
+    surface (and every trajectory on it) changed from run to run and process to process.
+    """
+    saved = getattr(trimesh.util, "_RANDOM_DEFAULT", None)
+    if saved is None:  # another trimesh version: nothing to seed
+        yield
+        return
+    trimesh.util._RANDOM_DEFAULT = np.random.default_rng(seed)
+    try:
+        yield
+    finally:
+        trimesh.util._RANDOM_DEFAULT = saved
+
+
 def exposed_surface(parts: Sequence[trimesh.Trimesh]) -> Surface:
     """Vertices (and normals) of the parts that are not buried inside another part."""
     pts, nrm = [], []
@@ -93,7 +113,8 @@ def exposed_surface(parts: Sequence[trimesh.Trimesh]) -> Surface:
             near = keep & np.all((part.vertices > lo) & (part.vertices < hi), axis=1)
             if near.any():
                 try:
-                    inside = other.ray.contains_points(part.vertices[near])
+                    with _seeded_trimesh_random():
+                        inside = other.ray.contains_points(part.vertices[near])
                 except ImportError:  # trimesh's pure-Python rays need rtree; embreex is optional
                     continue
                 keep[np.nonzero(near)[0][inside]] = False
@@ -155,6 +176,18 @@ def _walk(
     raise TactileBenchError(f"trajectory walk stalled after {arcs[-1]:.0f} of {length_mm:.0f} mm")
 
 
+def _tangent(d: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, float]:
+    """``d`` projected onto the plane normal to ``n``, or any direction in it if that
+    vanishes, and its length. Where the smoothed path runs along the normal (a turn the
+    smoothing cancelled) the sliding direction carries on from the frame before; without
+    this the gel frame collapsed (a zero axis, an invalid pose for the renderer)."""
+    t = d - n * (d @ n)
+    if np.linalg.norm(t) < 1e-6:
+        axis = np.eye(3)[int(np.argmin(np.abs(n)))]  # the axis least along n
+        t = np.cross(n, axis)
+    return t, float(np.linalg.norm(t))
+
+
 def pose_noise(n: int, trans_mm: float, rot_deg: float, rng: np.random.Generator) -> np.ndarray:
     """(n, 4, 4) right-multiplied noise as in YCB-Slide's sim: zyx Euler deg, translation mm."""
     noise = np.tile(np.eye(4), (n, 1, 1))
@@ -212,7 +245,10 @@ def sliding_trajectories(
         direc = np.stack([np.interp(s, s_path, dense_dir[:, c]) for c in range(3)], 1)
         direc = _smooth(direc, width)
         direc -= normal * np.einsum("ij,ij->i", direc, normal)[:, None]
-        direc /= np.maximum(np.linalg.norm(direc, axis=1, keepdims=True), 1e-9)
+        length = np.linalg.norm(direc, axis=1, keepdims=True)
+        for i in np.nonzero(length[:, 0] < 1e-6)[0]:
+            direc[i], length[i] = _tangent(direc[i - 1] if i else direc[i], normal[i])
+        direc /= np.maximum(length, 1e-9)
 
         # gel frame: z into the object; y at a drifting angle psi to the sliding direction
         z = -normal

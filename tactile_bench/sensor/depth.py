@@ -66,6 +66,18 @@ def _thetas(bank: HeightFieldBank, poses: Poses, gel: GelSpec) -> torch.Tensor:
     return theta / bank.half_extent_mm
 
 
+def _affine_grid(theta: torch.Tensor, side: int) -> torch.Tensor:
+    """``F.affine_grid(theta, [k, 1, side, side], align_corners=False)``, ~3x faster.
+
+    The map is affine, so the grid is a row term plus a column term: one broadcast add
+    instead of a batched matmul against the homogeneous base grid (same values to ~1 ulp).
+    """
+    base = (torch.arange(side, dtype=theta.dtype) * 2 + 1) / side - 1
+    t = theta.transpose(1, 2)[:, None, None]  # (k, 1, 1, 3, 2): columns x, y, offset
+    along_x = torch.addcmul(t[..., 2, :], base[None, None, :, None], t[..., 0, :])  # (k,1,W,2)
+    return along_x + base[None, :, None, None] * t[..., 1, :]  # + (k, H, 1, 2)
+
+
 def render_height(
     bank: HeightFieldBank, poses: Poses, gel: GelSpec, chunk: int = 256
 ) -> torch.Tensor:
@@ -75,21 +87,38 @@ def render_height(
     sensor centre and pressed until its highest point is press_mm into the gel:
     ``signed = h(object point) - (max h - press_mm)``. Contacts are grouped by label so that
     each group is one ``affine_grid`` + ``grid_sample`` on its own map (no per-contact copies
-    of the field).
+    of the field). Contacts that differ only in press (the protocols' grids press every
+    placement to four depths) share one sample of the map: the press is only an offset.
     """
     n = len(poses)
     labels = poses.labels
     if n and (int(labels.min()) < 0 or int(labels.max()) >= len(bank)):
         raise TactileBenchError(f"render_height: labels outside the bank's {len(bank)} chars")
     side = gel.size * gel.oversample
-    out = torch.empty(n, 1, side, side, dtype=torch.float32)
-    maps = bank.maps.float()
     offset = bank.top_max.float()[labels] - poses.press_mm
+    placement = torch.stack([labels.float(), poses.x_mm, poses.y_mm, poses.yaw_deg], 1)
+    unique, inverse = torch.unique(placement, dim=0, return_inverse=True)
+    if len(unique) < n:
+        first = torch.full((len(unique),), n, dtype=torch.long).scatter_reduce_(
+            0, inverse, torch.arange(n), "amin"
+        )  # one contact of each placement
+        h = _sample_maps(bank, poses.index(first), gel, chunk, side)
+        return h[inverse].sub_(offset.view(n, 1, 1, 1))
+    return _sample_maps(bank, poses, gel, chunk, side).sub_(offset.view(n, 1, 1, 1))
+
+
+def _sample_maps(
+    bank: HeightFieldBank, poses: Poses, gel: GelSpec, chunk: int, side: int
+) -> torch.Tensor:
+    """The bank's map of each contact's label, moved and turned to its placement."""
+    labels = poses.labels
+    out = torch.empty(len(poses), 1, side, side, dtype=torch.float32)
+    maps = bank.maps.float()
     thetas = _thetas(bank, poses, gel)
     for label in torch.unique(labels).tolist():
         for idx in torch.nonzero(labels == label).flatten().split(chunk):
             k = len(idx)
-            grid = F.affine_grid(thetas[idx], [k, 1, side, side], align_corners=False)
+            grid = _affine_grid(thetas[idx], side)
             h = F.grid_sample(
                 maps[label : label + 1],
                 grid.view(1, k * side, side, 2),
@@ -97,16 +126,38 @@ def render_height(
                 padding_mode="border",
                 align_corners=True,
             ).view(k, 1, side, side)
-            out.index_copy_(0, idx, h.sub_(offset[idx].view(k, 1, 1, 1)))
+            out.index_copy_(0, idx, h)
     return out
 
 
-def to_depth(height: torch.Tensor, gel: GelSpec) -> torch.Tensor:
-    """Gel penetration depth (N, 1, size, size) mm: positive part, area-averaged."""
-    depth = height.clamp(min=0)
+def to_depth(height: torch.Tensor, gel: GelSpec, inplace: bool = False) -> torch.Tensor:
+    """Gel penetration depth (N, 1, size, size) mm: positive part, area-averaged.
+
+    ``inplace`` takes the positive part in ``height`` itself (one copy fewer, for a caller
+    that no longer needs the signed height).
+    """
+    depth = height.clamp_(min=0) if inplace else height.clamp(min=0)
     if gel.oversample > 1:
-        depth = F.avg_pool2d(depth, gel.oversample)
+        depth = area_pool(depth, gel.oversample)
     return depth
+
+
+def area_pool(x: torch.Tensor, factor: int) -> torch.Tensor:
+    """``F.avg_pool2d(x, factor)`` of (N, C, H, W), H and W multiples of ``factor``.
+
+    The same sums in the same order (so the same floats), as strided adds: ~2.5x faster on
+    CPU than torch's pooling kernel at these sizes.
+    """
+    n, c, h, w = x.shape
+    if h % factor or w % factor or x.requires_grad:
+        return F.avg_pool2d(x, factor)
+    v = x.view(n, c, h // factor, factor, w // factor, factor)
+    out = v[:, :, :, 0, :, 0].clone()
+    for i in range(factor):
+        for j in range(factor):
+            if i or j:
+                out += v[:, :, :, i, :, j]
+    return out.div_(factor * factor)
 
 
 def render_depth(

@@ -1,9 +1,10 @@
-"""Height fields of the braille blocks, ray-cast once per character with pybullet.
+"""Height fields of the braille blocks, ray-cast once per character (Embree or pybullet).
 
 A braille contact is a rigid transform of the block, so its depth image is a resampling of
 the block's top-surface height field. We ray-cast that field once (vertical rays against the
-mesh as a static concave collision shape, pybullet DIRECT mode, no OpenGL) and every contact
-afterwards is a ``grid_sample`` (``sensor.depth``).
+mesh: Embree when installed, else pybullet DIRECT mode with the mesh as a static concave
+collision shape; no OpenGL) and every contact afterwards is a ``grid_sample``
+(``sensor.depth``).
 
 Map layout: ``maps[l, 0, i, j]`` is the height (mm) relative to the block's top face of the
 point x = -half + j * res, y = +half - i * res (row 0 is the far +y edge, as in an image seen
@@ -96,15 +97,26 @@ def raycast_heights(
     z_to: float,
     miss: float,
     num_threads: int | None = None,
+    backend: str = "auto",
 ) -> np.ndarray:
     """Heights (M, len(ys), len(xs)) of the first hit of vertical rays cast down on M meshes.
 
-    ``meshes`` are (vertices, faces) pairs. One pybullet DIRECT client (disconnected
-    afterwards) holds one mesh at a time as a static concave shape; the same ray lists are
-    reused for every mesh (building them costs as much as casting). Rays go in chunks of
-    ``pybullet.MAX_RAY_INTERSECTION_BATCH_SIZE - 1`` on ``num_threads`` threads (default: all
-    cores; Bullet's own choice, 0, was 4x slower here). Rays that miss get ``miss``.
+    ``meshes`` are (vertices, faces) pairs. With Embree installed (``embreex``) the rays go
+    through its watertight ("robust") intersector: the grid puts rays exactly through mesh
+    vertices and edges, where the default one lets ~0.4% of them slip through. Otherwise one
+    pybullet DIRECT client (disconnected afterwards) holds one mesh at a time as a static
+    concave shape; the same ray lists are reused for every mesh (building them costs as
+    much as casting). Rays go in chunks of ``pybullet.MAX_RAY_INTERSECTION_BATCH_SIZE - 1``
+    on ``num_threads`` threads (default: all cores; Bullet's own choice, 0, was 4x slower
+    here). Both give the same heights to ~1e-6 mm; Embree ~10x faster. Rays that miss get
+    ``miss``. ``backend``: ``"auto"`` (Embree when installed), ``"embree"`` or ``"pybullet"``.
     """
+    from tactile_bench.sensor.mesh_depth import embree_available
+
+    if backend not in ("auto", "embree", "pybullet"):
+        raise TactileBenchError(f"raycast_heights: unknown backend {backend!r}")
+    if backend == "embree" or (backend == "auto" and embree_available()):
+        return _raycast_embree(meshes, xs, ys, z_from, z_to, miss)
     import pybullet as p  # imported lazily: it prints a build line on import
 
     num_threads = num_threads or os.cpu_count() or 1
@@ -143,6 +155,45 @@ def raycast_heights(
             p.resetSimulation(physicsClientId=cid)  # removeBody fails for static meshes
     finally:
         p.disconnect(physicsClientId=cid)
+    return out.reshape(len(meshes), len(ys), len(xs))
+
+
+def _raycast_embree(
+    meshes: Sequence[tuple[np.ndarray, np.ndarray]],
+    xs: np.ndarray,
+    ys: np.ndarray,
+    z_from: float,
+    z_to: float,
+    miss: float,
+) -> np.ndarray:
+    """``raycast_heights`` with Embree's robust intersector (float32, meshes centred)."""
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    gx, gy = np.meshgrid(xs, ys)
+    length = z_from - z_to
+    out = np.full((len(meshes), gx.size), miss, dtype=np.float64)
+    for m, (vertices, faces) in enumerate(meshes):
+        vertices = np.asarray(vertices, dtype=np.float64)
+        centre = (vertices.min(0) + vertices.max(0)) / 2  # float32 keeps ~1e-6 mm near 0
+        scene = rtcore_scene.EmbreeScene(robust=True)
+        TriangleMesh(
+            scene=scene,
+            vertices=(vertices - centre).astype(np.float32),
+            indices=np.asarray(faces, dtype=np.int32),
+        )
+        origins = np.stack(
+            [gx.ravel() - centre[0], gy.ravel() - centre[1], np.full(gx.size, z_from - centre[2])],
+            1,
+        ).astype(np.float32)
+        dirs = np.zeros_like(origins)
+        dirs[:, 2] = -1.0
+        limit = np.float32(length)
+        dist = scene.run(
+            origins, dirs, query="DISTANCE", dists=np.full(gx.size, limit, dtype=np.float32)
+        )
+        hit = dist < limit
+        out[m, hit] = z_from - dist[hit].astype(np.float64)
     return out.reshape(len(meshes), len(ys), len(xs))
 
 

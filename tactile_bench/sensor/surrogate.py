@@ -36,14 +36,15 @@ import torch.nn.functional as F
 import yaml
 
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, get_effect
-from tactile_bench.effects.base import EffectContext, ParamValue
+from tactile_bench.effects.base import EffectContext, ParamValue, replay_draws
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
 from tactile_bench.sensor.background import UNITS, digit_background
-from tactile_bench.sensor.depth import GelSpec, render_height
+from tactile_bench.sensor.depth import GelSpec, area_pool, render_height
 from tactile_bench.sensor.heightfield import HeightFieldBank
 from tactile_bench.sensor.optics import SimOptics
+from tactile_bench.sensor.timing import stage as timed
 
 PROFILE_DIR = Path(__file__).with_name("profiles")
 NO_CONTACT_MM = 1.0  # object distance from the gel for the no-contact frame
@@ -83,6 +84,9 @@ def _resize(x: torch.Tensor, size: int) -> torch.Tensor:
     """Area-average down (or bilinear up) to size x size, like a camera pixel integrates."""
     if tuple(x.shape[-2:]) == (size, size):
         return x
+    h, w = x.shape[-2:]
+    if h == w and h % size == 0:  # the oversampled render: same sums as the adaptive pool
+        return area_pool(x, h // size)
     if x.shape[-1] >= size and x.shape[-2] >= size:
         return F.adaptive_avg_pool2d(x, (size, size))
     return F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False)
@@ -120,6 +124,8 @@ class SurrogateDigit:
             )
         try:
             data = yaml.safe_load(path.read_text())
+        except (OSError, UnicodeDecodeError) as err:
+            raise TactileBenchError(f"{path}: cannot read profile ({err})") from None
         except yaml.YAMLError as err:
             raise TactileBenchError(f"{path}: not valid YAML: {err}".splitlines()[0]) from None
         if not isinstance(data, Mapping):
@@ -193,7 +199,8 @@ class SurrogateDigit:
         for n in self.effects_enabled:
             effect = EFFECTS[n]
             if effect.stage == stage:
-                x = effect.apply(x, self._effects[n], generator, ctx)
+                with timed(f"real.{stage}.{n}"):
+                    x = effect.apply(x, self._effects[n], generator, ctx)
         return x
 
     def render_surface(
@@ -216,13 +223,16 @@ class SurrogateDigit:
             )
         ctx = EffectContext(gel.width_mm, gel.height_mm, stochastic, yaw_deg)
         h = self._apply_stage("geometry", height.float(), generator, ctx)
-        surface = _resize(h.clamp(min=0.0), gel.size)
+        with timed("real.resize"):
+            surface = _resize(h.clamp(min=0.0), gel.size)
         bg = digit_background(gel.size, self.unit)
         # skipped when optical_response replaces it outright (it would be multiplied by 0)
-        delta = None if self._sim_shading_replaced() else self._sim_delta(surface, bg, gel)
-        scene = new_scene(surface, bg, delta)
+        with timed("real.sim_shading"):
+            delta = None if self._sim_shading_replaced() else self._sim_delta(surface, bg, gel)
+            scene = new_scene(surface, bg, delta)
         scene = self._apply_stage("optics", scene, generator, ctx)
-        image = scene.composite()
+        with timed("real.composite"):
+            image = scene.composite()
         if image.shape[0] != surface.shape[0]:
             image = image.expand(surface.shape[0], -1, -1, -1)
         image = self._apply_stage("camera", image, generator, ctx)
@@ -260,13 +270,28 @@ class SurrogateDigit:
         flat = torch.full((1, 1, n, n), -NO_CONTACT_MM)
         return self.render_surface(flat, gel, None, stochastic=False)[0]
 
+    #: contacts per pass of ``render``; its random draws go chunk by chunk
+    RENDER_CHUNK = 128
+
+    def skip_random(self, n: int, gel: GelSpec, generator: torch.Generator) -> None:
+        """Advance ``generator`` exactly as ``render`` of ``n`` contacts would, without
+        rendering: the draws each enabled effect declares (``Effect.draws``), chunk by chunk.
+        Lets the contacts of one stream render in parallel parts with the same result."""
+        side = gel.size * gel.oversample
+        for k in range(0, n, self.RENDER_CHUNK):
+            m = min(self.RENDER_CHUNK, n - k)
+            for name in self.effects_enabled:
+                effect = EFFECTS[name]
+                if effect.stochastic and not effect.is_neutral(self.params(name)):
+                    replay_draws(effect.draws(m, (side, side), (gel.size, gel.size)), generator)
+
     def render(
         self,
         bank: HeightFieldBank,
         poses: Poses,
         gel: GelSpec | None = None,
         generator: torch.Generator | None = None,
-        chunk: int = 128,
+        chunk: int = RENDER_CHUNK,
     ) -> torch.Tensor:
         """Real-looking images (N, 3, S, S), 0..255, of contacts ``poses`` on ``bank``.
 
@@ -281,7 +306,8 @@ class SurrogateDigit:
         for k in range(0, len(poses), chunk):
             sub = poses.index(slice(k, k + chunk))
             sub = self._apply_stage("pose", sub, generator, ctx)
-            height = render_height(bank, sub, gel)
+            with timed("real.height"):
+                height = render_height(bank, sub, gel)
             parts.append(self.render_surface(height, gel, generator, yaw_deg=sub.yaw_deg))
         if not parts:
             return torch.zeros(0, 3, gel.size, gel.size)

@@ -1,0 +1,88 @@
+"""Opt-in stage timers for the simulation: where a dataset build spends its time.
+
+The renderers mark their stages with ``with stage("sim.optics"):``. Nothing is recorded
+(and the cost is one global lookup) unless a ``StageTimer`` is active, so the builders keep
+a single code path for measuring and for real work. Stages nest: a stage's time excludes
+the stages opened inside it, so the recorded times add up to the timed total.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
+
+_ACTIVE: StageTimer | None = None
+
+
+class StageTimer:
+    """Wall and CPU seconds per stage (exclusive of nested stages), while active.
+
+    CPU time is the calling thread's, so stages running concurrently in several Python
+    threads add up correctly; work a library hands to its own helper threads (torch's
+    intra-op pool when it has more than one thread, Embree's scene build) is not counted.
+    """
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = defaultdict(float)
+        self.cpu: dict[str, float] = defaultdict(float)
+        self._local = threading.local()  # per thread: a stack of [child wall, child cpu]
+        self._lock = threading.Lock()
+        self._previous: StageTimer | None = None
+        self.other_cpu = 0.0  # CPU seconds of other processes that reported here
+
+    def __enter__(self) -> StageTimer:
+        global _ACTIVE
+        self._previous, _ACTIVE = _ACTIVE, self
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        global _ACTIVE
+        _ACTIVE = self._previous
+
+    @contextmanager
+    def _stage(self, name: str) -> Iterator[None]:
+        stack = self._local.__dict__.setdefault("stack", [])
+        stack.append([0.0, 0.0])
+        w0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            yield
+        finally:
+            wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
+            child_wall, child_cpu = stack.pop()
+            with self._lock:
+                self.wall[name] += wall - child_wall
+                self.cpu[name] += cpu - child_cpu
+            if stack:
+                stack[-1][0] += wall
+                stack[-1][1] += cpu
+
+    def merge(
+        self, wall: dict[str, float], cpu: dict[str, float], process_cpu: float = 0.0
+    ) -> None:
+        """Add stage times recorded elsewhere (e.g. by a worker process, whose whole CPU
+        time ``process_cpu`` goes to ``other_cpu``: the parent's clock does not see it)."""
+        with self._lock:
+            self.other_cpu += process_cpu
+            for name, seconds in wall.items():
+                self.wall[name] += seconds
+            for name, seconds in cpu.items():
+                self.cpu[name] += seconds
+
+
+def active_timer() -> StageTimer | None:
+    """The ``StageTimer`` now recording, if any (worker processes report back to it)."""
+    return _ACTIVE
+
+
+@contextmanager
+def _nothing() -> Iterator[None]:
+    yield
+
+
+def stage(name: str) -> AbstractContextManager[None]:
+    """Context manager timing ``name`` on the active ``StageTimer``; a no-op without one."""
+    timer = _ACTIVE
+    return timer._stage(name) if timer is not None else _nothing()
