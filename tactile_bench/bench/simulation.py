@@ -1,0 +1,167 @@
+"""Contact simulation throughput: braille contacts and pretraining-object frames per second.
+
+A contact costs three products, each timed on its own: the sim depth (what TACTO gives),
+the sim image (``SimOptics``) and the surrogate "real" image (``SurrogateDigit``). The
+headline figure is the end-to-end builder the pipeline runs (``render_braille_set`` for
+braille, ``build_ycb_slide_standin`` for the objects, shard writing included), at 1x, 2x
+and 4x the work so a non-linear cost shows. One-off set-up (the braille height-field bank,
+an object's mesh, ray-casting scene and trajectories) is timed apart: it does not grow
+with the number of contacts.
+"""
+
+from __future__ import annotations
+
+import itertools
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from tactile_bench.bench.timing import measure
+from tactile_bench.data.braille import render_braille_set
+from tactile_bench.data.ycb_slide import StandinConfig, build_ycb_slide_standin, settle_press
+from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.geometry.contacts import Poses, finetune_test_protocol
+from tactile_bench.geometry.objects import object_parts
+from tactile_bench.geometry.trajectories import exposed_surface, sliding_trajectories
+from tactile_bench.sensor.background import sim_background
+from tactile_bench.sensor.depth import GelSpec, render_height, to_depth
+from tactile_bench.sensor.heightfield import build_bank
+from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
+from tactile_bench.sensor.optics import SimOptics
+from tactile_bench.sensor.surrogate import SurrogateDigit
+
+SCALES = (1, 2, 4)
+
+
+def _poses(n: int) -> Poses:
+    """``n`` contacts spread over the whole fine-tune/test grid (all characters, yaws, depths)."""
+    grid = finetune_test_protocol(CHARACTERS)
+    idx = torch.arange(n) * len(grid) // max(n, 1)
+    return grid.index(idx % len(grid))
+
+
+def braille(n: int, repeats: int, profile: str = "digit") -> dict[str, Any]:
+    """Per-stage cost and end-to-end contacts/s of braille contacts, at 1x, 2x, 4x ``n``."""
+    gel = GelSpec()
+    setup = measure(lambda: build_bank(CHARACTERS), work=len(CHARACTERS), repeats=1)
+    bank = build_bank(CHARACTERS)
+    real = SurrogateDigit.from_profile(profile)
+    optics = SimOptics()
+    sim_bg = sim_background(gel.size)
+    real_bg = real.background(gel.size)
+    poses = _poses(n)
+    depth = to_depth(render_height(bank, poses, gel), gel)
+
+    def gen() -> torch.Generator:
+        return torch.Generator().manual_seed(0)
+
+    stages = {
+        "depth": measure(lambda: to_depth(render_height(bank, poses, gel), gel), n, repeats),
+        "sim_image": measure(lambda: optics.render(depth, sim_bg, gen(), gel), n, repeats),
+        "real_image": measure(lambda: real.render(bank, poses, gel, gen()), n, repeats),
+    }
+    scaling = {}
+    for k in SCALES:
+        p = _poses(n * k)
+        scaling[f"{k}x"] = measure(
+            lambda p=p: render_braille_set(
+                bank, p, gel, optics, sim_bg, real, real_bg, gen(), gen()
+            ),
+            n * k,
+            repeats,
+        ).to_dict()
+    stage_total = sum(t.median_wall_s for t in stages.values())
+    return {
+        "contacts": n,
+        "setup_bank_s": setup.median_wall_s,
+        "stages": {
+            name: {**t.to_dict(), "share": t.median_wall_s / stage_total}
+            for name, t in stages.items()
+        },
+        "scaling": scaling,
+        "contacts_per_s": scaling[f"{SCALES[-1]}x"]["per_s"],
+    }
+
+
+def _object_scene(name: str, frames: int, gel: GelSpec) -> tuple[MeshDepthRenderer, Any]:
+    parts = object_parts(name, 0)
+    trajectory = sliding_trajectories(exposed_surface(parts), name, 1, frames, seed=0)[0]
+    import trimesh
+
+    return MeshDepthRenderer.from_trimesh(trimesh.util.concatenate(parts), gel), trajectory
+
+
+def objects(
+    n: int, repeats: int, object_names: tuple[str, ...] = ("004_sugar_box",), profile: str = "digit"
+) -> dict[str, Any]:
+    """Per-stage cost and end-to-end frames/s of the YCB-Slide stand-in, at 1x, 2x, 4x ``n``."""
+    gel = GelSpec()
+    real = SurrogateDigit.from_profile(profile)
+    optics = SimOptics()
+    sim_bg = sim_background(gel.size)
+    name = object_names[0]
+    setup = measure(lambda: _object_scene(name, n, gel)[0].close(), work=1, repeats=1)
+    renderer, traj = _object_scene(name, n, gel)
+    press = traj.press_mm.astype(np.float64)
+    true_h, _, _ = settle_press(renderer, traj.poses, press)
+
+    def depth() -> torch.Tensor:  # both poses settled, as the builder does
+        settle_press(renderer, traj.poses, press)
+        meas_h, _, _ = settle_press(renderer, traj.measured, press)
+        return to_depth(meas_h, gel)
+
+    d = depth()
+
+    def gen() -> torch.Generator:
+        return torch.Generator().manual_seed(0)
+
+    stages = {
+        "depth": measure(depth, n, repeats),
+        "sim_image": measure(lambda: optics.render(d, sim_bg, gen(), gel), n, repeats),
+        "real_image": measure(lambda: real.render_surface(true_h, gel, gen()), n, repeats),
+    }
+    renderer.close()
+    scaling = {}
+    runs = itertools.count()
+    with tempfile.TemporaryDirectory(prefix="tb_bench_") as tmp:
+        for k in SCALES:
+
+            def build(k: int = k, runs: Iterator[int] = runs) -> None:
+                # a fresh directory each time: the builder would skip finished shards
+                build_ycb_slide_standin(
+                    Path(tmp) / f"{k}x_{next(runs)}",
+                    config=StandinConfig(n_pairs=n * k, objects=object_names),
+                    real_sensor=real,
+                    progress=False,
+                )
+
+            frames = StandinConfig(n_pairs=n * k, objects=object_names)
+            work = frames.frames_per_trajectory * frames.n_trajectories * len(object_names)
+            # the first build also pays one-off imports and caches: warm up once
+            warmup = 1 if k == SCALES[0] else 0
+            scaling[f"{k}x"] = measure(build, work, repeats, warmup=warmup).to_dict()
+    stage_total = sum(t.median_wall_s for t in stages.values())
+    return {
+        "frames": n,
+        "objects": list(object_names),
+        "setup_scene_s": setup.median_wall_s,
+        "stages": {
+            name: {**t.to_dict(), "share": t.median_wall_s / stage_total}
+            for name, t in stages.items()
+        },
+        "scaling": scaling,
+        "frames_per_s": scaling[f"{SCALES[-1]}x"]["per_s"],
+    }
+
+
+def linearity(scaling: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """Time at k x the work divided by k x the time at 1x: 1.0 is linear, > 1 superlinear."""
+    base = scaling["1x"]["median_wall_s"]
+    return {key: row["median_wall_s"] / (int(key[:-1]) * base) for key, row in scaling.items()}
+
+
+__all__ = ["SCALES", "braille", "linearity", "objects"]

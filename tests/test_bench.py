@@ -1,0 +1,134 @@
+"""``bench``: a tiny in-process run; the JSON schema; ratios come from measured times."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from pathlib import Path
+
+import pytest
+
+from tactile_bench.bench import BenchConfig, run_bench
+from tactile_bench.bench.timing import measure, peak_memory
+from tactile_bench.cli import main
+
+# a 50-step schedule keeps the full-chain DDPM baseline (500 steps in a real run) short
+TINY_DIFFUSION = {"preset": "tiny", "batch_size": 4, "sample_batch_size": 4, "train_timesteps": 50}
+TINY = BenchConfig.quick_preset(
+    repeats=2,
+    sim_contacts=8,
+    sim_frames=2,
+    n_finetune=54,
+    n_test=27,
+    ddpm_images=2,
+    default_images=6,
+    variant_images=2,
+    cases=(("ddim", 1), ("dpmsolver++", 2)),
+    presets=("tiny",),
+    preset_batch=2,
+    train_warmup=1,
+    train_steps=1,
+    epoch_sizes={"translator": (8, 16, 32), "classifier": (20, 40, 80)},
+    fit_steps=2,
+    translator_overrides={
+        "diffusion": TINY_DIFFUSION,
+        "cgan": {"batch_size": 4, "generator_channels": 4, "discriminator_channels": 4},
+    },
+)
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
+    """The sampling section on a tiny model fitted by the bench itself (no --diffusion)."""
+    out = tmp_path_factory.mktemp("bench")
+    return run_bench(TINY, out_dir=out, sections=("sampling",), progress=False), out
+
+
+def test_writes_json_and_markdown_with_the_sampling_schema(result: tuple[dict, Path]) -> None:
+    r, out = result
+    on_disk = json.loads((out / "bench.json").read_text())
+    assert on_disk["machine"]["cores"] >= 1
+    assert on_disk["machine"]["torch"]
+    assert on_disk["loadavg_start"] is not None and on_disk["loadavg_end"] is not None
+    for row in on_disk["sampling"]:
+        assert {"sampler", "steps", "images_per_s", "ssim", "speedup_vs_ddpm500"} <= set(row)
+        assert row["images_per_s"] > 0 and -1 <= row["ssim"] <= 1
+    assert on_disk["sampling"][0]["sampler"] == "ddpm"
+    assert on_disk["sampling"][0]["steps"] == TINY_DIFFUSION["train_timesteps"]
+    assert "fitted by the bench" in on_disk["sampling_details"]["model"]["source"]
+    md = (out / "bench.md").read_text()
+    assert "DDPM-50" in md and "| sampler |" in md
+
+
+@pytest.mark.slow
+def test_full_tiny_run_covers_every_section(tmp_path: Path) -> None:
+    r = run_bench(TINY, out_dir=tmp_path, progress=False)
+    on_disk = json.loads((tmp_path / "bench.json").read_text())
+    sim = on_disk["simulation"]
+    assert sim["braille_contacts_per_s"] > 0 and sim["object_frames_per_s"] > 0
+    assert set(sim["braille"]["stages"]) == {"depth", "sim_image", "real_image"}
+    assert {"translator:diffusion", "translator:cgan", "classifier"} <= set(r["training"])
+    for rows in r["scaling"]["epoch"].values():
+        assert list(rows) == ["1x", "2x", "4x"]
+    for rows in r["training"].values():
+        assert rows["fp32"]["speedup_vs_fp32"] == pytest.approx(1.0)
+        bf16 = rows["bf16"]
+        assert bf16["speedup_vs_fp32"] == pytest.approx(
+            bf16["images_per_s"] / rows["fp32"]["images_per_s"]
+        )
+    assert len(r["threads"]) == 3 and all("error" not in row for row in r["threads"])
+    assert r["threads"][0]["vs_first"] == pytest.approx(1.0)
+    md = (tmp_path / "bench.md").read_text()
+    assert "OpenMP" in md
+    assert "Contact simulation" in md and "linearity" in md and "Training throughput" in md
+
+
+def test_ratios_are_computed_from_the_measured_times(result: tuple[dict, Path]) -> None:
+    r, _ = result
+    rows = r["sampling"]
+    base = rows[0]
+    assert base["speedup_vs_ddpm500"] == pytest.approx(1.0)
+    for row in rows:
+        timing = row["timing"]
+        median = statistics.median(timing["wall_s"])
+        assert row["images_per_s"] == pytest.approx(row["images"] / median, rel=1e-3)
+        assert row["speedup_vs_ddpm500"] == pytest.approx(
+            row["images_per_s"] / base["images_per_s"], rel=1e-6
+        )
+    # a 1- or 2-step solver on the same contacts beats 50 DDPM steps: measured, not set
+    fast = [row for row in rows if row["steps"] <= 2]
+    assert fast and all(row["speedup_vs_ddpm500"] > 3 for row in fast)
+    assert len({round(row["speedup_vs_ddpm500"], 6) for row in rows}) == len(rows)
+    check = r["sampling_details"]["default_check"]
+    assert check["speedup_vs_ddpm500"]["value"] == pytest.approx(
+        next(row for row in rows if row["default"])["speedup_vs_ddpm500"]
+    )
+    assert check["all_met"] == all(
+        c["value"] >= c["target"] for k, c in check.items() if k != "all_met"
+    )
+
+
+def test_measure_uses_medians_of_wall_time() -> None:
+    delays = iter([0.0, 0.03, 0.01, 0.02])  # warm-up, then three timed calls
+    timing = measure(lambda: time.sleep(next(delays)), work=10, repeats=3, warmup=1)
+    assert len(timing.wall_s) == 3
+    assert timing.median_wall_s == pytest.approx(0.02, abs=0.008)
+    assert timing.per_s == pytest.approx(10 / timing.median_wall_s)
+
+
+def test_peak_memory_sees_a_large_temporary() -> None:
+    import torch
+
+    with peak_memory() as mem:
+        x = torch.ones(64, 2**20 // 4)  # 64 MiB, touched
+        time.sleep(0.02)
+        del x
+    assert mem.delta_mib > 32
+
+
+def test_cli_names_a_missing_checkpoint(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    code = main(["bench", "--diffusion", str(tmp_path / "none.pt"), "--out", str(tmp_path)])
+    assert code == 2
+    assert "none.pt" in capsys.readouterr().err
+    assert not (tmp_path / "bench.json").exists()
