@@ -14,6 +14,7 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from tactile_bench.errors import TactileBenchError
 
@@ -21,7 +22,13 @@ EXIT_USER_ERROR = 2
 
 # Modules that add a subcommand: each defines ``register(subparsers) -> None`` and sets
 # ``func`` on its parser. Listed, not discovered, so a command appears only when it ships.
-COMMAND_MODULES: tuple[str, ...] = ("tactile_bench.read.commands",)
+COMMAND_MODULES: tuple[str, ...] = (
+    "tactile_bench.diagnose.commands",
+    "tactile_bench.diagnose.validate",
+    "tactile_bench.read.commands",
+    "tactile_bench.data.check",
+    "tactile_bench.bench.commands",
+)
 
 
 def _cmd_fit(ns: argparse.Namespace) -> int:
@@ -267,12 +274,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _CurrentStderr(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is at the time (tests and notebooks swap it; a
+    handler bound to the first one would write to a closed stream)."""
+
+    @property
+    def stream(self) -> Any:  # type: ignore[override]
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: Any) -> None:
+        pass
+
+
 def _configure_logging(level: int) -> None:
     """Our own messages on stderr; Lightning keeps its own handler (no duplicated lines)."""
     logger = logging.getLogger("tactile_bench")
     logger.setLevel(level)
     if not logger.handlers:
-        handler = logging.StreamHandler()
+        handler = _CurrentStderr()
         handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
         logger.addHandler(handler)
         logger.propagate = False
@@ -281,6 +301,9 @@ def _configure_logging(level: int) -> None:
 def main(args: list[str] | None = None) -> int:
     """Run the command line; returns the exit code instead of exiting, for in-process tests."""
     os.environ.setdefault("WANDB_MODE", "offline")
+    # Idle OpenMP threads sleep instead of spinning: on a busy laptop core, spinning made
+    # 2 threads slower than 1 (bench: docs/results/bench.md). Read when torch first loads.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     parser = build_parser()
     try:
         ns = parser.parse_args(args)
@@ -297,5 +320,9 @@ def main(args: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
-        print("interrupted: finished stages are kept; rerun to resume", file=sys.stderr)
+        print(
+            "interrupted: finished stages and training checkpoints are kept; "
+            "rerun the same command to resume",
+            file=sys.stderr,
+        )
         return 130
