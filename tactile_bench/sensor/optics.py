@@ -23,6 +23,7 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
+from tactile_bench.effects.base import replay_draws
 from tactile_bench.sensor.depth import GelSpec
 
 _CHUNK = 16  # images per pass of ``SimOptics.render``: a multiple of 16 (see there)
@@ -223,8 +224,8 @@ class SimOptics:
 def _skip_noise(optics: SimOptics, n: int, hw: tuple[int, int], generator: torch.Generator) -> None:
     """Advance ``generator`` as ``optics.render`` of ``n`` images of size ``hw`` would."""
     if optics.noise_std > 0:
-        for k in range(0, n, _CHUNK):
-            torch.randn((min(_CHUNK, n - k), 3, *hw), generator=generator, dtype=torch.float32)
+        draws = [("randn", (min(_CHUNK, n - k), 3, *hw)) for k in range(0, n, _CHUNK)]
+        replay_draws(draws, generator)  # type: ignore[arg-type]
 
 
 def _pixel_centres(
