@@ -34,6 +34,7 @@ ENCODER_STEPS = 300
 # with ~6 images a class, only long training with random shifts generalises at all (150
 # braille pairs: a real-trained classifier reads held-out real at 3% without, 33% with)
 CLASSIFIER_SAMPLES = 9000
+MAX_EPOCHS = 60
 
 
 def _foreground(images: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
@@ -73,7 +74,7 @@ def _downstream(
         "real_accuracy": _foreground(data.real[fit_idx], data.background),
     }
     test = _foreground(data.real[held_idx[known]], data.background)
-    epochs = max(2, round(CLASSIFIER_SAMPLES / len(fit_idx)))
+    epochs = min(MAX_EPOCHS, max(2, round(CLASSIFIER_SAMPLES / len(fit_idx))))
     config = ClassifierConfig(
         width=8, blocks=(1, 1, 1, 1), epochs=epochs, augment=True, shift_px=2, seed=seed
     )

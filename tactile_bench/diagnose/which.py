@@ -172,9 +172,10 @@ def explain_gap(
             options[name] = (p, model_gap(base_held, target_held, {**selected, name: p}, seed))
     if len(selected) >= 2:
         joint = fit_jointly(selected, base_fit, target_fit, seed=seed)
-        joint_gap = model_gap(base_held, target_held, joint, seed)
-        if float(joint_gap.mean()) < float(current.mean()):
-            selected, current = joint, joint_gap
+        # kept if it fits the fit split better: the held-out split only scores
+        fit_gaps = [model_gap(base_fit, target_fit, e, seed).mean() for e in (joint, selected)]
+        if float(fit_gaps[0]) < float(fit_gaps[1]):
+            selected, current = joint, model_gap(base_held, target_held, joint, seed)
     floor = 0.0
     if is_stochastic(selected):
         # the gap the selected model would leave on data drawn from itself: its own
