@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 
@@ -22,6 +23,7 @@ def _cmd_bench(ns: argparse.Namespace) -> int:
         braille=ns.braille,
         sections=tuple(ns.only or SECTIONS),
         progress=not ns.no_progress,
+        command=" ".join(["python -m tactile_bench", *sys.argv[1:]]),
     )
     print(f"\nwrote {ns.out}/bench.json and {ns.out}/bench.md ({result['wall_s']:.0f} s)")
     if "sampling_details" in result:

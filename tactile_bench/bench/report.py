@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+_STAGE_ORDER = {"depth": 0, "sim_image": 1, "real_image": 2}
 NONLINEAR = 0.15  # |time(kx) / (k time(1x)) - 1| above this is called out as not linear
 
 
@@ -27,8 +28,8 @@ def _machine(r: dict[str, Any]) -> list[str]:
     return [
         "# tactile_bench: benchmark of this machine",
         "",
-        f"`python -m tactile_bench bench{' --quick' if quick else ''}`: "
-        f"{'quick' if quick else 'full'} run, {r['wall_s']:.0f} s in all.",
+        f"`{r.get('command') or 'python -m tactile_bench bench' + (' --quick' if quick else '')}`"
+        f": {'quick' if quick else 'full'} run, {r['wall_s']:.0f} s in all.",
         "",
         f"- machine: {m['cpu']} ({m['cpu_capability']}), {m['cores']} cores "
         f"({m.get('cores_usable')} usable), torch {m['torch']} with {m['torch_threads']} "
@@ -228,7 +229,7 @@ def _stages(section: dict[str, Any], unit: str) -> list[str]:
             f"{100 * s['share']:.0f} %",
             _f(s["peak_mib"], 1),
         ]
-        for name, s in section["stages"].items()
+        for name, s in sorted(section["stages"].items(), key=lambda kv: _STAGE_ORDER.get(kv[0], 9))
     ]
     return _table(["stage", f"{unit}/s", f"ms per {unit[:-1]}", "share", "peak MiB"], rows)
 
@@ -260,7 +261,9 @@ def _simulation(r: dict[str, Any]) -> list[str]:
 
 def _training(r: dict[str, Any]) -> list[str]:
     t = r["training"]
-    variants = list(next(iter(t.values())))
+    order = ("fp32", "bf16", "fp32+channels_last", "bf16+channels_last")
+    seen = list(next(iter(t.values())))
+    variants = [v for v in order if v in seen] + [v for v in seen if v not in order]
     rows = []
     for model, row in t.items():
         cells = [model]

@@ -212,8 +212,12 @@ def run_bench(
     sections: tuple[str, ...] = SECTIONS,
     threads: int | None = None,
     progress: bool = True,
+    command: str | None = None,
 ) -> dict[str, Any]:
-    """Run the chosen sections, write ``bench.json`` and ``bench.md`` in ``out_dir``."""
+    """Run the chosen sections, write ``bench.json`` and ``bench.md`` in ``out_dir``.
+
+    ``command`` is the command line to print in bench.md (the CLI passes its own).
+    """
     from tactile_bench.bench.report import render_markdown
 
     unknown = sorted(set(sections) - set(SECTIONS))
@@ -227,6 +231,7 @@ def run_bench(
         "config": _jsonable(dataclasses.asdict(cfg)),
         "loadavg_start": _loadavg(),
         "sections": list(sections),
+        "command": command,
     }
     with torch_threads(threads), _quiet_lightning():
         result["machine"] = machine_info()
