@@ -3,8 +3,8 @@
 Every candidate of the catalogue (``candidates.CANDIDATES``) is fitted alone on the fit split
 (``gapfit.fit_candidate``) and scored on the held-out split by the share of the gap it
 removes (``singles``). Greedy forward selection then adds, round by round, the candidate
-that removes most of what is left, refitted with the ones already chosen (the
-``MAX_REFITS`` candidates that did best alone, among those that alone pass), while it removes
+that removes most of what is left, refitted with the ones already chosen (see
+``_worth_refitting``), while it removes
 more than ``MIN_SHARE`` of the initial gap and the lower end of its bootstrap 95% CI
 (held-out pairs resampled) is above zero. With two or more selected, their differentiable
 parameters are refitted jointly. ``unexplained`` is what is left, as a share of the initial
@@ -25,6 +25,7 @@ from tqdm.auto import tqdm
 from tactile_bench.diagnose.candidates import (
     DEFAULT_CANDIDATES,
     NOT_CANDIDATES,
+    Base,
     get_candidate,
     make_base,
     render,
@@ -45,6 +46,8 @@ FLAG_UNEXPLAINED = 0.2  # residual share above which it is flagged
 MAX_ROUNDS = 4
 BOOTSTRAP = 500
 MAX_REFITS = 4  # candidates refitted with the selected ones each round, best singles first
+SCREEN_SHARE = 0.25  # ... plus any whose single fit still removes this share of what is left
+SCREEN_PAIRS = 64
 
 
 @dataclass
@@ -147,6 +150,8 @@ def explain_gap(
     )
     # a candidate that alone removes less than the threshold is not refitted in later rounds
     useful = [r.effect for r in singles if g0 - r.gap_after >= threshold]
+    n_screen = min(len(fit_idx), SCREEN_PAIRS)
+    screen = (base_fit.subset(torch.arange(n_screen)), target_fit.subset(torch.arange(n_screen)))
 
     selected: dict[str, dict[str, float]] = {}
     ranking: list[EffectFit] = []
@@ -164,8 +169,7 @@ def explain_gap(
         current = after
         if float(current.mean()) < threshold:  # nothing left that could pass the threshold
             break
-        # the few that did most alone (a refit costs as much as a first fit)
-        rest = [n for n in useful if n not in selected][:MAX_REFITS]
+        rest = _worth_refitting([n for n in useful if n not in selected], fits, selected, screen)
         options = {}
         for name in tqdm(rest, desc="refit with selected", disable=not progress or not rest):
             p = fit_candidate(name, base_fit, target_fit, prior=selected, seed=seed)
@@ -197,6 +201,26 @@ def explain_gap(
         candidates=names,
         not_candidates={k: v for k, v in NOT_CANDIDATES.items() if k not in names},
     )
+
+
+def _worth_refitting(
+    names: list[str],
+    fits: Mapping[str, tuple[dict[str, float], torch.Tensor]],
+    selected: Mapping[str, Mapping[str, float]],
+    screen: tuple[Base, Target],
+) -> list[str]:
+    """Candidates to refit with ``selected`` (a refit costs as much as a first fit): the
+    ``MAX_REFITS`` that did best alone, and any whose single fit, added as it is, still
+    removes ``SCREEN_SHARE`` of what is left on the fit split (a weak effect of its own,
+    such as a codec under a blur, that the single shrinks rank low)."""
+    base, target = screen
+    now = float(model_gap(base, target, selected).mean())
+    keep = names[:MAX_REFITS]
+    for name in names[MAX_REFITS:]:
+        trial = float(model_gap(base, target, {**selected, name: fits[name][0]}).mean())
+        if now - trial >= SCREEN_SHARE * now:
+            keep.append(name)
+    return keep
 
 
 def apply_effects(
