@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from tactile_bench.effects.base import area_pool
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
 from tactile_bench.sensor.heightfield import HeightFieldBank
@@ -140,24 +141,6 @@ def to_depth(height: torch.Tensor, gel: GelSpec, inplace: bool = False) -> torch
     if gel.oversample > 1:
         depth = area_pool(depth, gel.oversample)
     return depth
-
-
-def area_pool(x: torch.Tensor, factor: int) -> torch.Tensor:
-    """``F.avg_pool2d(x, factor)`` of (N, C, H, W), H and W multiples of ``factor``.
-
-    The same sums in the same order (so the same floats), as strided adds: ~2.5x faster on
-    CPU than torch's pooling kernel at these sizes.
-    """
-    n, c, h, w = x.shape
-    if h % factor or w % factor or x.requires_grad:
-        return F.avg_pool2d(x, factor)
-    v = x.view(n, c, h // factor, factor, w // factor, factor)
-    out = v[:, :, :, 0, :, 0].clone()
-    for i in range(factor):
-        for j in range(factor):
-            if i or j:
-                out += v[:, :, :, i, :, j]
-    return out.div_(factor * factor)
 
 
 def render_depth(

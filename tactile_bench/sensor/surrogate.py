@@ -36,12 +36,12 @@ import torch.nn.functional as F
 import yaml
 
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, get_effect
-from tactile_bench.effects.base import EffectContext, ParamValue, replay_draws
+from tactile_bench.effects.base import EffectContext, ParamValue, area_pool, replay_draws
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
 from tactile_bench.sensor.background import UNITS, digit_background
-from tactile_bench.sensor.depth import GelSpec, area_pool, render_height
+from tactile_bench.sensor.depth import GelSpec, render_height
 from tactile_bench.sensor.heightfield import HeightFieldBank
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.timing import stage as timed
