@@ -11,9 +11,7 @@ matrices, sample images, what varies with the seeds, and where the time went.
 from __future__ import annotations
 
 import json
-import platform
 import shutil
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -21,13 +19,12 @@ import numpy as np
 
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.io import atomic_write_json, atomic_write_text
+from tactile_bench.pipeline.provenance import machine, versions
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind, StageResult
 from tactile_bench.report.document import Document
 from tactile_bench.report.figures import per_class_heatmap_png
 from tactile_bench.report.shape import shape_checks
 from tactile_bench.report.table import COLUMNS, PAPER_TABLE, results_markdown, table_cells
-
-_VERSIONED = ("tactile_bench", "torch", "lightning", "diffusers", "kornia", "torchmetrics")
 
 
 class ReportConfig(StageConfig):
@@ -64,14 +61,9 @@ def _similarity(ctx: StageContext) -> list[dict[str, Any]]:
     return json.loads(compare.path("similarity_json").read_text())["rows"]
 
 
-def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version(), "platform": platform.platform()}
-    for name in _VERSIONED:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
+def _versions() -> dict[str, str | None]:
+    """What the report's numbers were computed with (the same record as run.json)."""
+    return {**versions(), "platform": machine()["platform"]}
 
 
 def _per_class_figure(rows: list[dict[str, Any]], path: Path) -> Path:
