@@ -17,6 +17,7 @@ from tactile_bench.translators.diffusion import (
     SAMPLERS,
     DiffusionTranslator,
     build_unet,
+    estimate_pixel_noise,
     make_sampler,
 )
 from tactile_bench.translators.diffusion.torch_model import count_parameters
@@ -166,3 +167,56 @@ def test_other_prediction_targets_train_and_sample(tmp_path: Path, prediction: s
     assert sampler.config.prediction_type == prediction
     depth, _ = tiny_pairs(n=2, size=32)
     assert torch.isfinite(translator.translate_foreground(depth)).all()
+
+
+def _contact_frames(n: int = 32, size: int = 64) -> tuple[torch.Tensor, torch.Tensor]:
+    """(depth, foreground): flat gel with one small contact (radius 5 px) a frame, at random."""
+    gen = torch.Generator().manual_seed(0)
+    ys, xs = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    centres = torch.randint(8, size - 8, (n, 2), generator=gen)
+    r2 = (xs - centres[:, 0, None, None]) ** 2 + (ys - centres[:, 1, None, None]) ** 2
+    bump = (1.0 - r2 / 25.0).clamp(min=0).unsqueeze(1)
+    return bump, 0.5 + 0.2 * bump * torch.tensor([1.0, 0.6, 0.3]).view(1, 3, 1, 1)
+
+
+def test_pixel_noise_estimate_recovers_the_noise_not_the_contacts() -> None:
+    _, clean = _contact_frames()
+    std = torch.tensor([1.0, 2.0, 4.0]) / 255
+    gen = torch.Generator().manual_seed(1)
+    white = clean + torch.randn(clean.shape, generator=gen) * std.view(1, 3, 1, 1)
+    torch.testing.assert_close(estimate_pixel_noise(white), std, rtol=0.1, atol=0.0)
+    # noise correlated between neighbours (a 2 x 2 box of white noise) keeps its full std
+    coarse = torch.randn(clean.shape[0], 3, 32, 32, generator=gen)
+    smooth = torch.nn.functional.interpolate(coarse, scale_factor=2.0, mode="nearest")
+    correlated = clean + smooth * std.view(1, 3, 1, 1)
+    torch.testing.assert_close(estimate_pixel_noise(correlated), std, rtol=0.1, atol=0.0)
+    assert (estimate_pixel_noise(clean) < 0.2 / 255).all()  # contacts alone are not noise
+    assert estimate_pixel_noise(clean[:4]) is None  # too few frames for a median
+
+
+def test_samples_carry_the_noise_of_the_training_images(tmp_path: Path) -> None:
+    depth, clean = _contact_frames(n=16, size=32)
+    gen = torch.Generator().manual_seed(1)
+    noisy = clean + torch.randn(clean.shape, generator=gen) * (3 / 255)
+    settings = {**TINY, "batch_size": 16}
+    translator = DiffusionTranslator(settings)
+    translator.fit_pairs(depth, noisy, tmp_path / "on", {"enable_progress_bar": False})
+    expected = torch.full((3,), 3 / 255)
+    torch.testing.assert_close(translator.pixel_noise_std, expected, rtol=0.15, atol=0.0)
+    noisy_sample = translator.translate_foreground(depth, torch.Generator().manual_seed(2))
+    translator.config.observation_noise = False
+    clean_sample = translator.translate_foreground(depth, torch.Generator().manual_seed(2))
+    added = (noisy_sample - clean_sample)[(clean_sample > 0.05) & (clean_sample < 0.95)]
+    assert abs(float(added.std()) - 3 / 255) < 0.5 / 255  # the same chain plus the noise
+
+    off = DiffusionTranslator({**settings, "observation_noise": False})
+    off.fit_pairs(depth, noisy, tmp_path / "off", {"enable_progress_bar": False})
+    assert not off.pixel_noise_std.any()
+
+
+def test_checkpoints_without_a_noise_estimate_still_load(tmp_path: Path) -> None:
+    translator = fitted(tmp_path)
+    state = {k: v for k, v in translator.state_dict().items() if "pixel_noise" not in k}
+    fresh = DiffusionTranslator(TINY)
+    fresh.load_state_dict(state)
+    assert not fresh.pixel_noise_std.any()
