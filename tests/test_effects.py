@@ -132,6 +132,15 @@ def test_out_of_range_and_unknown_params(name: str) -> None:
         effect.validate({p.name: "high"})
 
 
+@pytest.mark.parametrize("name", ALL)
+def test_range_bounds_are_valid_values_in_any_precision(name: str) -> None:
+    effect = get_effect(name)
+    for p in effect.params:
+        for bound in (p.low, p.high):
+            for value in (bound, torch.tensor(bound), torch.tensor([bound, bound])):
+                assert effect.validate({p.name: value})[p.name] is value
+
+
 @pytest.mark.parametrize("name", [n for n in ALL if not EFFECTS[n].stochastic])
 def test_batched_equals_per_image(name: str) -> None:
     effect = get_effect(name)

@@ -154,11 +154,16 @@ class Effect(ABC):
                 raise TactileBenchError(
                     f"effect {self.name!r}: parameter {key!r} must be a number, got {value!r}"
                 )
-            t = value.detach() if isinstance(value, torch.Tensor) else torch.tensor(value)
+            if isinstance(value, torch.Tensor):
+                t = value.detach()
+            else:
+                t = torch.tensor(value, dtype=torch.float64)
             if not bool(torch.isfinite(t).all()):
                 raise TactileBenchError(f"effect {self.name!r}: parameter {key!r} is not finite")
             lo, hi = float(t.min()), float(t.max())
-            if lo < p.low or hi > p.high:
+            # bounds rounded as the value was: a float32 0.1 is a valid upper bound 0.1
+            low, high = (float(torch.tensor(b, dtype=t.dtype)) for b in (p.low, p.high))
+            if lo < low or hi > high:
                 raise TactileBenchError(
                     f"effect {self.name!r}: parameter {key!r} = {value if t.numel() == 1 else t}"
                     f" {p.unit} outside its range [{p.low}, {p.high}]"
