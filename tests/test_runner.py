@@ -85,3 +85,24 @@ def test_run_json_records_stages(recipe_path: Path, tmp_path: Path) -> None:
     run_recipe(load_recipe(recipe_path))
     text = (tmp_path / "run" / "run.json").read_text()
     assert '"a"' in text and '"wall_time_s"' in text
+
+
+def test_no_progress_reaches_lightning_without_changing_keys(
+    recipe_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    seen: list[dict[str, Any]] = []
+
+    def record(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+        seen.append(dict(ctx.trainer))
+        return _produce(ctx)
+
+    monkeypatch.setitem(
+        stage_registry.STAGES,
+        "count",
+        StageKind("count", "test", CountConfig, record, {"up": False}),
+    )
+    quiet = run_recipe(load_recipe(recipe_path), progress=False)
+    assert [t.get("enable_progress_bar") for t in seen] == [False, False]
+    again = run_recipe(load_recipe(recipe_path), progress=True)
+    assert all(r.cached for r in again)  # same stage directories: progress is not in the key
+    assert [r.directory for r in again] == [r.directory for r in quiet]

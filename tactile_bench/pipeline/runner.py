@@ -161,13 +161,16 @@ def run_recipe(
             (directory / DONE).unlink(missing_ok=True)
             directory.mkdir(parents=True, exist_ok=True)
             log.info("stage %s (%s): running in %s", stage.name, stage.kind.name, directory)
+            trainer = dict(recipe.trainer)
+            if not progress:  # --no-progress silences Lightning's bars too (not in any key)
+                trainer.setdefault("enable_progress_bar", False)
             ctx = StageContext(
                 stage.name,
                 directory,
                 stage.config,
                 inputs,
                 recipe.seed,
-                dict(recipe.trainer),
+                trainer,
                 recipe.run_dir,
                 recipe.path.parent,
                 progress,
