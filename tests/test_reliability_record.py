@@ -102,3 +102,15 @@ def test_editing_a_named_input_file_reruns_its_stage(recipe: Path, tmp_path: Pat
     edited = _fit(recipe, tmp_path / "run")
     assert not edited["stages"][0]["cached"]
     assert edited["stages"][0]["directory"] != first["stages"][0]["directory"]
+
+
+def test_a_relative_profile_path_is_read_beside_the_recipe(
+    recipe: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    braille_only = recipe.read_text().split("  - name: translate_sim")[0]
+    recipe.write_text(braille_only.replace(str(tmp_path / "unit.yaml"), "unit.yaml"))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # the profile is not in the working directory
+    run = _fit(recipe, tmp_path / "run")
+    assert run["stages"][0]["config"]["real_sensor"] == "unit.yaml"

@@ -5,11 +5,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
 from tactile_bench.errors import TactileBenchError
+
+if TYPE_CHECKING:
+    from tactile_bench.sensor.surrogate import SurrogateDigit
 
 
 class StageConfig(BaseModel):
@@ -66,12 +69,20 @@ def resolve_source(source: str, base_dir: Path) -> Path:
     return path if path.is_absolute() else (base_dir / path).resolve()
 
 
-def check_real_sensor(profile: str) -> None:
-    """A data stage's ``real_sensor`` must load as a surrogate profile; the error names the key."""
+def real_sensor(profile: str, base_dir: Path) -> SurrogateDigit:
+    """A data stage's ``real_sensor``: a built-in profile name, or a YAML path read relative
+    to the recipe's folder (as every other path in a recipe), not the working directory."""
     from tactile_bench.sensor.surrogate import SurrogateDigit
 
+    if Path(profile).suffix:
+        return SurrogateDigit.from_profile(resolve_source(profile, base_dir))
+    return SurrogateDigit.from_profile(profile)
+
+
+def check_real_sensor(profile: str, base_dir: Path) -> None:
+    """A data stage's ``real_sensor`` must load as a surrogate profile; the error names the key."""
     try:
-        SurrogateDigit.from_profile(profile)
+        real_sensor(profile, base_dir)
     except TactileBenchError as exc:
         raise TactileBenchError(f"real_sensor: {exc}") from None
 

@@ -23,6 +23,7 @@ from tactile_bench.pipeline.stages.base import (
     StageContext,
     StageKind,
     check_real_sensor,
+    real_sensor,
     resolve_source,
 )
 from tactile_bench.report.figures import sample_grid_png
@@ -30,7 +31,6 @@ from tactile_bench.sensor.background import sim_background
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.heightfield import build_bank
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.surrogate import SurrogateDigit
 
 SETS = ("finetune", "test", "classifier", "classifier_test")
 
@@ -54,7 +54,7 @@ def _check(config: BrailleDataConfig, base_dir: Path) -> None:
     unknown = sorted(set(config.chars) - set(CHARACTERS))
     if unknown:
         raise TactileBenchError(f"chars: not braille characters of the paper: {''.join(unknown)}")
-    check_real_sensor(config.real_sensor)
+    check_real_sensor(config.real_sensor, base_dir)
     if config.source != "surrogate":
         check_braille_layout(resolve_source(config.source, base_dir))
 
@@ -65,7 +65,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     gel = GelSpec(size=config.image_size, oversample=config.oversample)
     bank = build_bank(chars, BrailleSpec())
     simulated = config.source == "surrogate"
-    real = SurrogateDigit.from_profile(config.real_sensor)
+    real = real_sensor(config.real_sensor, ctx.recipe_dir)
     sets = build_braille_sets(
         bank,
         gel,

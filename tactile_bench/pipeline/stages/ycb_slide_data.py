@@ -25,11 +25,11 @@ from tactile_bench.pipeline.stages.base import (
     StageContext,
     StageKind,
     check_real_sensor,
+    real_sensor,
     resolve_source,
 )
 from tactile_bench.report.figures import sample_grid_png
 from tactile_bench.sensor.depth import GelSpec
-from tactile_bench.sensor.surrogate import SurrogateDigit
 
 log = logging.getLogger("tactile_bench")
 
@@ -58,7 +58,7 @@ def _check(config: YcbSlideConfig, base_dir: Path) -> None:
     unknown = [o for o in config.objects if o not in OBJECTS]
     if unknown:
         raise TactileBenchError(f"objects: unknown {unknown}; known: {', '.join(OBJECTS)}")
-    check_real_sensor(config.real_sensor)
+    check_real_sensor(config.real_sensor, base_dir)
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
@@ -80,7 +80,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
                 n_pairs=config.n_pairs, seed=ctx.seed, objects=tuple(config.objects)
             ),
             gel=GelSpec(size=config.image_size),
-            real_sensor=SurrogateDigit.from_profile(config.real_sensor),
+            real_sensor=real_sensor(config.real_sensor, ctx.recipe_dir),
             progress=ctx.progress,
         )
     _preview(ctx.directory)
