@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from tactile_bench.data.images import to_uint8
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.geometry.contacts import (
@@ -51,12 +52,6 @@ class RealSensor(Protocol):
         gel: GelSpec,
         generator: torch.Generator | None,
     ) -> torch.Tensor: ...
-
-
-def _to_uint8(image: torch.Tensor) -> torch.Tensor:
-    if image.dtype == torch.uint8:
-        return image
-    return image.float().clamp(0, 255).round_().to(torch.uint8)  # = round, then clamp
 
 
 @dataclass
@@ -134,12 +129,12 @@ class BrailleSet:
             poses = Poses(**{k: torch.from_numpy(a[f"pose_{k}"]) for k in _POSE_KEYS})
             return cls(
                 depth=torch.from_numpy(a["depth"]).float(),
-                sim=_to_uint8(torch.from_numpy(a["sim"])),
-                real=_to_uint8(torch.from_numpy(a["real"])),
+                sim=to_uint8(torch.from_numpy(a["sim"])),
+                real=to_uint8(torch.from_numpy(a["real"])),
                 labels=poses.labels,
                 poses=poses,
-                sim_background=_to_uint8(torch.from_numpy(a["sim_background"])),
-                real_background=_to_uint8(torch.from_numpy(a["real_background"])),
+                sim_background=to_uint8(torch.from_numpy(a["sim_background"])),
+                real_background=to_uint8(torch.from_numpy(a["real_background"])),
             )
         except (TactileBenchError, RuntimeError, TypeError, ValueError) as exc:
             raise TactileBenchError(f"{path}: not a valid braille set ({exc})") from None
@@ -247,10 +242,10 @@ def _render_range(
         with timed("sim.optics"):
             s = sim_optics.render(d, sim_background, sim_gen, gel)
         with timed("uint8"):
-            sim.append(_to_uint8(s))
+            sim.append(to_uint8(s))
         r = real_sensor.render(bank, part, gel, real_gen)
         with timed("uint8"):
-            real.append(_to_uint8(r[0] if isinstance(r, tuple) else r))
+            real.append(to_uint8(r[0] if isinstance(r, tuple) else r))
         if bar is not None:
             bar.update(len(part))
     return depth, sim, real
@@ -362,8 +357,8 @@ def build_braille_sets(
             chars, n_classifier_test, int(select.generate_state(3)[2])
         ),
     }
-    sim_bg = _to_uint8(torch.as_tensor(sim_background))
-    real_bg = _to_uint8(real_sensor.background(gel.size))
+    sim_bg = to_uint8(torch.as_tensor(sim_background))
+    real_bg = to_uint8(real_sensor.background(gel.size))
     total = sum(len(p) for p in poses.values())
     out = {}
     with tqdm(total=total, desc="braille sets", unit="contact", disable=not progress) as bar:

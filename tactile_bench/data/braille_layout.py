@@ -19,6 +19,7 @@ from pathlib import Path
 import torch
 
 from tactile_bench.data.braille import BrailleSet
+from tactile_bench.data.images import to_uint8
 from tactile_bench.data.pairs import PairSet
 from tactile_bench.data.tactile_diffusion import load_braille_pairs, load_braille_real_images
 from tactile_bench.errors import TactileBenchError
@@ -34,10 +35,6 @@ LAYOUT_CONTENT = {
     "classifier": {"has_sim": True, "has_real": False},
     "classifier_test": {"has_sim": False, "has_real": True},
 }
-
-
-def _uint8(x: torch.Tensor) -> torch.Tensor:
-    return x.float().round().clamp(0, 255).to(torch.uint8)
 
 
 def _single(background: torch.Tensor) -> torch.Tensor:
@@ -60,12 +57,12 @@ def _pairs_set(
     sim = SimOptics().render(pairs.depth, sim_background.float(), generator, gel)
     return BrailleSet(
         depth=pairs.depth.float(),
-        sim=_uint8(sim),
-        real=_uint8(pairs.real),
+        sim=to_uint8(sim),
+        real=to_uint8(pairs.real),
         labels=labels,
         poses=_unposed(labels, pairs.depth),
-        sim_background=_uint8(sim_background),
-        real_background=_uint8(_single(pairs.real_background)),
+        sim_background=to_uint8(sim_background),
+        real_background=to_uint8(_single(pairs.real_background)),
     )
 
 
@@ -112,11 +109,11 @@ def load_layout_sets(
     classifier_test = BrailleSet(
         depth=blank_depth,
         sim=torch.zeros(n, 3, size, size, dtype=torch.uint8),
-        real=_uint8(images),
+        real=to_uint8(images),
         labels=labels,
         poses=_unposed(labels, blank_depth),
-        sim_background=_uint8(sim_background),
-        real_background=_uint8(_single(background)),
+        sim_background=to_uint8(sim_background),
+        real_background=to_uint8(_single(background)),
     )
     classifier = BrailleSet(
         depth=simulated_classifier.depth,
@@ -125,7 +122,7 @@ def load_layout_sets(
         labels=simulated_classifier.labels,
         poses=simulated_classifier.poses,
         sim_background=simulated_classifier.sim_background,
-        real_background=_uint8(_single(background)),
+        real_background=to_uint8(_single(background)),
     )
     return {
         "finetune": finetune,

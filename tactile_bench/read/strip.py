@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from tactile_bench.data.images import to_uint8
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.geometry.contacts import Poses
@@ -238,10 +239,6 @@ def render_frames(
     return StripFrames(
         x_mm=x,
         depth=torch.cat(depth) if depth else torch.zeros(0, 1, s, s),
-        images=_to_uint8(torch.cat(images) if images else torch.zeros(0, 3, s, s)),
-        background=_to_uint8(background),
+        images=to_uint8(torch.cat(images) if images else torch.zeros(0, 3, s, s)),
+        background=to_uint8(background),
     )
-
-
-def _to_uint8(image: torch.Tensor) -> torch.Tensor:
-    return image.float().round().clamp(0, 255).to(torch.uint8)
