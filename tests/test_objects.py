@@ -148,3 +148,22 @@ def test_bad_inputs_are_errors() -> None:
         MeshDepthRenderer.from_trimesh(box, backend="opengl")
     with pytest.raises(TactileBenchError, match="faces"):
         MeshDepthRenderer(np.zeros((3, 3)), np.zeros((0, 3)))
+
+
+@pytest.mark.parametrize("backend", ["embree", "pybullet"])
+def test_peak_height_is_the_max_over_its_sub_grid(backend: str) -> None:
+    """The settle probe casts every step-th pixel's ray: its max is that sub-grid's max of
+    the full render, so never above the full render's peak."""
+    if backend == "embree" and not embree_available():
+        pytest.skip("embreex not installed")
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=20.0)
+    renderer = MeshDepthRenderer.from_trimesh(sphere, GelSpec(size=16), backend=backend)
+    poses = np.stack([_box_pose(d, 20.0) for d in (0.5, 1.5, -30.0)])
+    poses[0, :3, 3] += [3.0, -2.0, 0.0]
+    full = renderer.render_height(poses)
+    peak = renderer.peak_height(poses, 4)
+    renderer.close()
+    expected = full[:, 0, 2::4, 2::4].flatten(1).amax(1).double().numpy()
+    np.testing.assert_allclose(peak, expected, atol=1e-5)
+    assert (peak <= full.flatten(1).amax(1).double().numpy() + 1e-6).all()
+    assert peak[2] == -renderer.reach_mm  # nothing within reach

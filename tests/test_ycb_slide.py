@@ -160,3 +160,28 @@ def test_default_surrogate_builds(tmp_path: Path) -> None:
     manifest = build_ycb_slide_standin(tmp_path, 20, objects=OBJS[:1], progress=False)
     assert load_pairs(tmp_path, "all").real.float().std() > 0
     assert manifest["pairs_per_s"] > 0
+
+
+def test_settle_probe_moves_only_far_frames() -> None:
+    """The peak probe moves frames that start far from their press before the full render;
+    frames that start close come out as without it (to float rounding: the last pass's
+    residual shift of ~1e-8 mm), and both settle every frame to its press."""
+    import trimesh
+
+    from tactile_bench.data.ycb_slide import settle_press
+    from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=20.0)
+    renderer = MeshDepthRenderer.from_trimesh(sphere, GelSpec(size=16))
+    poses = np.tile(np.eye(4), (4, 1, 1))
+    poses[:, :3, :3] = np.diag([1.0, -1.0, -1.0])  # looking down -z onto the sphere's top
+    poses[:, :3, 3] = [[0, 0, 19.5], [1, 0, 19.2], [0, 1, 14.0], [0, 0, 25.0]]  # last 2: far
+    press = np.array([0.5, 0.8, 0.6, 1.0])
+    h_old, p_old, ok_old = settle_press(renderer, poses, press, peak_step=None)
+    h_new, p_new, ok_new = settle_press(renderer, poses, press)
+    renderer.close()
+    assert ok_old.all() and ok_new.all()
+    np.testing.assert_allclose(h_new.flatten(1).amax(1).numpy(), press, atol=1e-4)
+    torch.testing.assert_close(h_new[:2], h_old[:2], atol=1e-6, rtol=0)
+    np.testing.assert_allclose(p_new[:2], p_old[:2], atol=1e-6)
+    torch.testing.assert_close(h_new[2:], h_old[2:], atol=1e-4, rtol=0)

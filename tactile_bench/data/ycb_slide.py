@@ -96,8 +96,16 @@ class StandinConfig:
         return max(2, -(-self.n_pairs // (len(self.objects) * self.n_trajectories)))
 
 
+#: pixel stride of ``settle_press``'s peak probe: 1/16 of a frame's rays
+PEAK_STEP = 4
+
+
 def settle_press(
-    renderer: MeshDepthRenderer, poses: np.ndarray, press_mm: np.ndarray, passes: int = 2
+    renderer: MeshDepthRenderer,
+    poses: np.ndarray,
+    press_mm: np.ndarray,
+    passes: int = 2,
+    peak_step: int | None = PEAK_STEP,
 ) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
     """Slide each pose along its z until the deepest gel penetration equals ``press_mm``.
 
@@ -106,15 +114,31 @@ def settle_press(
     large (the reach window may have clipped them). Returns (height, settled poses, valid):
     a frame is invalid when no shift settles it, i.e. another part of the object sits behind
     the gel plane (the sensor body would collide with it, as in a scissors' handle ring).
+
+    ``peak_step``: first probe every ``peak_step``-th pixel (``MeshDepthRenderer.peak_height``)
+    and move the frames the probe finds far off (those the second pass would re-render)
+    before the full render. On curved objects most frames start millimetres off, and the
+    probe costs 1/16 of the re-render it saves; frames found close are not touched (their
+    result is the one without the probe, to ~1e-8 mm of float rounding). The probe acts as
+    one more correction, so a few frames two passes left unsettled (dropped as collisions)
+    now settle (+4 of 270 frames on mug, scissors, sugar box). None: no probe.
     """
     with timed("settle"):
-        return _settle_press(renderer, poses, press_mm, passes)
+        return _settle_press(renderer, poses, press_mm, passes, peak_step)
 
 
 def _settle_press(
-    renderer: MeshDepthRenderer, poses: np.ndarray, press_mm: np.ndarray, passes: int
+    renderer: MeshDepthRenderer,
+    poses: np.ndarray,
+    press_mm: np.ndarray,
+    passes: int,
+    peak_step: int | None = None,
 ) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
     poses = poses.copy()
+    if peak_step and passes > 0:
+        guess = press_mm - renderer.peak_height(poses, peak_step)
+        far = np.abs(guess) > 0.25 * renderer.reach_mm  # what the redo test below uses
+        poses[far, :3, 3] += poses[far, :3, 2] * guess[far, None]
     height = renderer.render_height(poses)
     for _ in range(passes):
         shift = press_mm - height.flatten(1).amax(1).numpy()

@@ -228,12 +228,36 @@ class MeshDepthRenderer:
             return self._render_embree(p)
         return self._render_rays(p)
 
-    def _render_rays(self, p: np.ndarray) -> torch.Tensor:
-        """Any backend: float64 ray set-up, then the backend's caster (the reference path)."""
-        n_pix = len(self._xs)
+    def peak_height(self, poses: np.ndarray | torch.Tensor, step: int = 4) -> np.ndarray:
+        """(N,) highest signed height, mm, seen by every ``step``-th pixel in each direction.
+
+        A cheap (1 / step^2 of the rays) estimate of ``render_height(poses)``'s maximum, for
+        callers that move a pose before rendering it (``data.ycb_slide.settle_press``): it
+        can miss a peak narrower than ``step`` pixels, never overshoots one.
+        """
+        p = check_poses(poses)
+        if self._cast is None:
+            raise TactileBenchError("mesh_depth: renderer already closed")
         side = self.gel.size * self.gel.oversample
+        keep = np.zeros((side, side), dtype=bool)
+        keep[step // 2 :: step, step // 2 :: step] = True
+        keep = keep.ravel()
+        with timed("height.peak"):
+            if self.backend == "embree":
+                h = self._render_embree(p, self._xs[keep], self._ys[keep])
+            else:
+                h = self._render_rays(p, self._xs[keep], self._ys[keep])
+        return h.flatten(1).amax(1).numpy().astype(np.float64)
+
+    def _render_rays(
+        self, p: np.ndarray, xs: np.ndarray | None = None, ys: np.ndarray | None = None
+    ) -> torch.Tensor:
+        """Any backend: float64 ray set-up, then the backend's caster (the reference path)."""
+        xs = self._xs if xs is None else xs
+        ys = self._ys if ys is None else ys
+        n_pix = len(xs)
         out = np.empty((len(p), n_pix), dtype=np.float32)
-        local = np.stack([self._xs, self._ys, np.full(n_pix, -self.reach_mm)], 1)  # (P, 3)
+        local = np.stack([xs, ys, np.full(n_pix, -self.reach_mm)], 1)  # (P, 3)
         for k in range(0, len(p), self.chunk_frames):
             chunk = p[k : k + self.chunk_frames]
             rot, trans = chunk[:, :3, :3], chunk[:, :3, 3]
@@ -245,9 +269,11 @@ class MeshDepthRenderer:
             height = self.reach_mm - dist  # z_hit = dist - reach; height = -z_hit
             height[~np.isfinite(height)] = -self.reach_mm
             out[k : k + len(chunk)] = height.reshape(len(chunk), n_pix)
-        return torch.from_numpy(out).reshape(len(p), 1, side, side)
+        return _as_images(out)
 
-    def _render_embree(self, p: np.ndarray) -> torch.Tensor:
+    def _render_embree(
+        self, p: np.ndarray, xs64: np.ndarray | None = None, ys64: np.ndarray | None = None
+    ) -> torch.Tensor:
         """``render_height`` for Embree, with the ray set-up done in float32 (Embree's own
         precision; the frame's origin is moved to the mesh centre first, in float64).
 
@@ -256,9 +282,10 @@ class MeshDepthRenderer:
         less set-up). Same rays as ``_render_rays`` to float32 rounding (~1e-6 mm).
         """
         scene, centre = self._cast.scene, self._cast.centre  # type: ignore[union-attr]
-        n_pix = len(self._xs)
-        side = self.gel.size * self.gel.oversample
-        xs, ys = self._xs.astype(np.float32), self._ys.astype(np.float32)
+        xs64 = self._xs if xs64 is None else xs64
+        ys64 = self._ys if ys64 is None else ys64
+        n_pix = len(xs64)
+        xs, ys = xs64.astype(np.float32), ys64.astype(np.float32)
         reach = np.float32(self.reach_mm)
         limit = np.float32(2 * self.reach_mm)
         out = np.empty((len(p), n_pix), dtype=np.float32)
@@ -285,7 +312,15 @@ class MeshDepthRenderer:
             # z_hit = dist - reach, height = -z_hit; a miss within the window reads -reach
             height = np.where(dist < limit, reach - dist, -reach)
             out[k : k + len(chunk)] = height.reshape(len(chunk), n_pix)
-        return torch.from_numpy(out).reshape(len(p), 1, side, side)
+        return _as_images(out)
+
+
+def _as_images(heights: np.ndarray) -> torch.Tensor:
+    """(N, P) per-pixel heights as (N, 1, S, S) images (P = S^2), or (N, 1, 1, P) rays."""
+    n, n_pix = heights.shape
+    side = int(round(n_pix**0.5))
+    shape = (n, 1, side, side) if side * side == n_pix else (n, 1, 1, n_pix)
+    return torch.from_numpy(heights).reshape(shape)
 
 
 def render_mesh_height(
