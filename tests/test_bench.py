@@ -132,3 +132,22 @@ def test_cli_names_a_missing_checkpoint(tmp_path: Path, capsys: pytest.CaptureFi
     assert code == 2
     assert "none.pt" in capsys.readouterr().err
     assert not (tmp_path / "bench.json").exists()
+
+
+def test_object_builds_count_the_worker_processes_cpu() -> None:
+    """``time.process_time`` misses the worker processes: their reported CPU is added."""
+    from tactile_bench.bench.simulation import _measure_with_workers
+
+    t = _measure_with_workers(lambda: 5.0, work=10, repeats=2)
+    assert len(t.cpu_s) == 2 and all(5.0 <= c < 5.5 for c in t.cpu_s)
+    assert t.per_cpu_s < 10 / 5.0
+
+
+@pytest.mark.slow
+def test_objects_are_built_at_the_amortised_size() -> None:
+    from tactile_bench.bench.simulation import objects
+
+    r = objects(2, 1, ("037_scissors",), amortised=40)
+    assert r["scaling"]["4x"]["work"] >= 40 and r["scaling"]["1x"]["work"] >= 10
+    assert r["first_build_s"] > 0 and r["frames_per_s"] == r["scaling"]["4x"]["per_s"]
+    assert r["marginal"]["frames_per_cpu_s"] > 0
