@@ -131,6 +131,24 @@ def test_factored_blur_equals_its_matrices(sigma: tuple[float, float]) -> None:
     torch.testing.assert_close(gaussian_blur(x, *map(torch.tensor, sigma)), expected)
 
 
+@pytest.mark.parametrize(
+    ("shape", "sigma"), [((2, 1, 128, 128), (1.6, 1.2)), ((3, 3, 64, 64), (0.43, 0.32))]
+)
+def test_narrow_blur_by_taps_equals_the_matrices(shape: tuple, sigma: tuple) -> None:
+    """Narrow blurs (radius <= 5 px) run as shifted adds: the same blur as the matrices."""
+    from tactile_bench.effects.base import _cached_small_taps
+
+    assert _cached_small_taps(shape[2], shape[3], *sigma, 64) is not None  # the taps path
+    x = torch.rand(*shape) * 255
+    my, mx = blur_matrices(shape[2], shape[3], *sigma)
+    got = gaussian_blur(x, *map(torch.tensor, sigma))
+    torch.testing.assert_close(got, my @ x @ mx.T, atol=1e-4, rtol=1e-6)
+    # fitted sigmas keep the differentiable matrices
+    s = torch.tensor(sigma[0], requires_grad=True)
+    gaussian_blur(x, s, torch.tensor(sigma[1])).sum().backward()
+    assert s.grad is not None and torch.isfinite(s.grad)
+
+
 def test_effect_fast_paths_match_their_autograd_paths() -> None:
     """The in-place (no autograd) code of each effect equals its differentiable code."""
     gen = torch.Generator().manual_seed(0)
