@@ -189,14 +189,25 @@ def fit_candidate(
     sweep_idx, adam_idx = order[: budget.sweep_pairs], order[: budget.adam_pairs]
     u = {s.name: s.to_unit(s.start) for s in cand.searched}
     subsets = {}
+    seen: dict[tuple[int, tuple[float, ...]], torch.Tensor] = {}
 
     def loss(values: Mapping[str, object], idx: torch.Tensor) -> torch.Tensor:
+        # the sweeps revisit points (each sweep starts from its best so far, a level can be
+        # the current value): the gap is deterministic, so a float point is computed once
+        point = None
+        if not any(isinstance(values[s.name], torch.Tensor) for s in cand.searched):
+            point = (id(idx), tuple(float(values[s.name]) for s in cand.searched))
+            if point in seen:
+                return seen[point]
         params = {s.name: s.from_unit(values[s.name]) for s in cand.searched}
         key = id(idx)
         if key not in subsets:
             subsets[key] = (base.subset(idx), target.subset(idx))
         sub, tgt = subsets[key]
-        return evaluate(sub, tgt, {**prior, name: params}, seed).mean()
+        value = evaluate(sub, tgt, {**prior, name: params}, seed).mean()
+        if point is not None:
+            seen[point] = value
+        return value
 
     def sweep(names: list[str], levels: tuple[float, ...], idx: torch.Tensor) -> bool:
         best = float(loss(u, idx))
