@@ -120,7 +120,7 @@ def _generate(ns: argparse.Namespace, chars: tuple[str, ...]) -> Any:
     from tactile_bench.data.braille import draw_disjoint, render_braille_set
     from tactile_bench.data.pairs import to_uint8
     from tactile_bench.geometry.braille import BrailleSpec
-    from tactile_bench.geometry.contacts import finetune_test_protocol
+    from tactile_bench.geometry.contacts import classifier_protocol, finetune_test_protocol
     from tactile_bench.sensor.background import sim_background
     from tactile_bench.sensor.depth import GelSpec
     from tactile_bench.sensor.heightfield import build_bank
@@ -129,7 +129,8 @@ def _generate(ns: argparse.Namespace, chars: tuple[str, ...]) -> Any:
 
     real = SurrogateDigit.from_profile(ns.profile)
     gel = GelSpec(size=ns.size)
-    grid = finetune_test_protocol(chars)
+    protocols = {"classifier": classifier_protocol, "finetune": finetune_test_protocol}
+    grid = protocols[ns.protocol](chars)
     (idx,) = draw_disjoint(grid.labels, (ns.generate,), len(chars), ns.seed)
     bank = build_bank(chars, BrailleSpec())
     optics = SimOptics(noise_std=0.0) if ns.noise_free_sim else SimOptics()
@@ -165,7 +166,7 @@ def _cmd_export_pairs(ns: argparse.Namespace) -> int:
             raise TactileBenchError("--generate: must be a positive number of pairs")
         chars = tuple(ns.chars or CHARACTERS)
         bset = _generate(ns, chars)
-        what = f"fresh pairs (surrogate profile {ns.profile})"
+        what = f"fresh pairs of the {ns.protocol} grid (surrogate profile {ns.profile})"
     else:
         path, stage_chars = find_braille_set(ns.source, ns.set)
         chars = tuple(ns.chars or stage_chars or CHARACTERS)
@@ -219,6 +220,14 @@ def register(subparsers: Any) -> None:
     )
     exp.add_argument(
         "--generate", type=int, metavar="N", help="render this many fresh pairs instead"
+    )
+    exp.add_argument(
+        "--protocol",
+        choices=("classifier", "finetune"),
+        default="classifier",
+        help="--generate: contact grid; classifier = upright, yaw -25..25 deg, +-3 mm (396 a "
+        "character; what the downstream classifiers learn from); finetune = yaw 0, +-45, "
+        "+-90 deg, +-5 mm (180 a character; the paper's paired real set)",
     )
     exp.add_argument("--profile", default="digit", help="surrogate profile playing 'real'")
     exp.add_argument("--chars", help="braille characters (default: the stage's, or all 27)")
