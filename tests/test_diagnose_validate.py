@@ -132,6 +132,9 @@ def test_how_far_downstream_trains_both_classifiers(bank) -> None:
     d = out["downstream"]
     for key in ("plain_sim_accuracy", "sim_plus_effects_accuracy", "real_accuracy"):
         assert 0.0 <= d[key] <= 1.0
+    noise = d["noise"]  # estimated from the pairs: real's own level adds nothing to real
+    assert len(noise["real_std"]) == 3 and noise["real"]["added"] == [0.0, 0.0, 0.0]
+    assert {"plain_sim", "sim_plus_effects"} <= set(noise) and noise["copies"] >= 1
 
 
 @pytest.mark.slow
