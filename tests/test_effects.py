@@ -287,3 +287,15 @@ def test_jpeg_matrices_match_block_dct(quality: float, size: int) -> None:
     d = (jpeg_approx(x, quality, (320, 240)) - _ref_jpeg(x, quality, (320, 240))).abs()
     assert float(d.mean()) < 1e-3 and float(d.max()) < 2.0
     assert float((d > 1e-3).float().mean()) < 1e-3
+
+
+def test_jpeg_batch_layout_keeps_images_apart() -> None:
+    """The codec works with the batch between rows and columns: each image must still be
+    coded on its own (same as alone, and as the straight-through gradient path)."""
+    x = torch.rand(5, 3, 64, 64, generator=_gen()) * 255
+    batch = jpeg_approx(x, 85, (320, 240))
+    alone = torch.cat([jpeg_approx(x[i : i + 1], 85, (320, 240)) for i in range(5)])
+    torch.testing.assert_close(batch, alone, atol=1e-3, rtol=0)
+    grad = jpeg_approx(x.clone().requires_grad_(), 85, (320, 240))
+    torch.testing.assert_close(batch, grad.detach(), atol=1e-3, rtol=0)
+    assert batch.is_contiguous() and batch.shape == x.shape

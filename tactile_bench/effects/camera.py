@@ -236,10 +236,15 @@ class _Rows:
         return cls(None if tiled else index, blocks.contiguous())
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        """``m @ x`` for x (..., K, C)."""
-        groups, _, width = self.blocks.shape
-        windows = x if self.index is None else x.index_select(-2, self.index)
-        return torch.matmul(self.blocks, windows.unflatten(-2, (groups, width))).flatten(-3, -2)
+        """``m @ x`` for x (K, B, C), the batch between rows and columns.
+
+        That layout makes each group's window one (w, B * C) matrix, so the product is G
+        GEMMs over the whole batch rather than G * B tiny ones (bmm's per-matrix overhead
+        was most of the JPEG's cost)."""
+        groups, g, width = self.blocks.shape
+        _, b, c = x.shape
+        windows = x if self.index is None else x.index_select(0, self.index)
+        return torch.bmm(self.blocks, windows.reshape(groups, width, b * c)).view(-1, b, c)
 
 
 @dataclass(frozen=True)
@@ -250,18 +255,20 @@ class _PlaneCodec:
 
     rows: _Rows  # (hh, s_h): upsample then DCT along y
     cols: torch.Tensor  # (s_w, ww): upsample then DCT along x, transposed
-    table: torch.Tensor  # (hh, ww) quantisation step of each coefficient
+    table: torch.Tensor  # (hh, 1, ww) quantisation step of each coefficient
     back_rows: _Rows  # (s_h, hh): inverse DCT then area-average along y
     back_cols: torch.Tensor  # (ww, s_w), transposed
 
     def __call__(self, plane: torch.Tensor) -> torch.Tensor:
-        """(B, s_h, s_w) -> same, after coding at (hh, ww)."""
-        coef = self.rows(plane @ self.cols)
+        """(s_h, B, s_w) -> same, after coding at (hh, ww): rows, batch, columns (``_Rows``)."""
+        s_h, b, s_w = plane.shape
+        coef = self.rows((plane.reshape(-1, s_w) @ self.cols).view(s_h, b, -1))  # (hh, B, ww)
         if coef.requires_grad:
             coef = _round_ste(coef / self.table) * self.table
         else:  # in place: the coefficients are the largest tensors of the surrogate
             coef = coef.div_(self.table).round_().mul_(self.table)
-        return self.back_rows(coef) @ self.back_cols
+        back = self.back_rows(coef)  # (s_h, B, ww)
+        return (back.view(-1, back.shape[-1]) @ self.back_cols).view(s_h, b, s_w)
 
 
 def _block_dct(n: int) -> torch.Tensor:
@@ -277,7 +284,7 @@ def _plane_codec(size: tuple[int, int], coded: tuple[int, int], table: tuple) ->
     return _PlaneCodec(
         rows=_Rows.of(d_h @ resize_matrix(hh, s_h, "bilinear")),
         cols=(d_w @ resize_matrix(ww, s_w, "bilinear")).T.contiguous(),
-        table=q,
+        table=q[:, None],
         back_rows=_Rows.of(resize_matrix(s_h, hh, "area") @ d_h.T),
         back_cols=(resize_matrix(s_w, ww, "area") @ d_w.T).T.contiguous(),
     )
@@ -303,12 +310,15 @@ def jpeg_approx(x: torch.Tensor, quality: float, native_hw: tuple[int, int]) -> 
     q_l, q_c = quant_tables(quality)
     luma = _plane_codec((s_h, s_w), (hh, ww), tuple(map(tuple, q_l.tolist())))
     chroma = _plane_codec((s_h, s_w), (hh // 2, ww // 2), tuple(map(tuple, q_c.tolist())))
-    ycc = torch.matmul(_RGB_TO_YCC, x.flatten(2)).unflatten(2, (s_h, s_w))  # JFIF
-    lum = luma(ycc[:, 0] - 128) + 128
-    chroma = chroma(ycc[:, 1:].flatten(0, 1)).unflatten(0, (n, 2))
+    # planes in (rows, batch, columns) layout, what the codec's products want
+    xt = x.permute(2, 1, 0, 3).reshape(s_h, 3, n * s_w)
+    ycc = torch.matmul(_RGB_TO_YCC, xt)  # (s_h, 3, N * s_w), JFIF
+    lum = luma((ycc[:, 0] - 128).view(s_h, n, s_w)) + 128
+    chroma = chroma(ycc[:, 1:].reshape(s_h, 2 * n, s_w)).view(s_h, 2, n, s_w)
     if lum.requires_grad or chroma.requires_grad:
-        rgb = torch.matmul(_YCC_TO_RGB, torch.cat([lum[:, None], chroma], 1).flatten(2))
-        return rgb.unflatten(2, (s_h, s_w)).clamp(0.0, 255.0)
+        ycc = torch.cat([lum[:, None], chroma], 1).flatten(2)
+        rgb = torch.matmul(_YCC_TO_RGB, ycc).view(s_h, 3, n, s_w)
+        return rgb.permute(2, 1, 0, 3).clamp(0.0, 255.0)
     # the inverse colour transform written out: R = Y + 1.402 Cr, G = Y - .34 Cb - .71 Cr,
     # B = Y + 1.772 Cb (no concatenated copy, no 3 x 3 GEMM per pixel)
     cb, cr = chroma[:, 0], chroma[:, 1]
@@ -319,7 +329,7 @@ def jpeg_approx(x: torch.Tensor, quality: float, native_hw: tuple[int, int]) -> 
             rgb[:, c].add_(cb, alpha=m[c][1])
         if m[c][2]:
             rgb[:, c].add_(cr, alpha=m[c][2])
-    return rgb.clamp_(0.0, 255.0)
+    return rgb.clamp_(0.0, 255.0).permute(2, 1, 0, 3).contiguous()
 
 
 class StreamCompression(Effect):
