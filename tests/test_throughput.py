@@ -149,6 +149,20 @@ def test_narrow_blur_by_taps_equals_the_matrices(shape: tuple, sigma: tuple) -> 
     assert s.grad is not None and torch.isfinite(s.grad)
 
 
+@pytest.mark.parametrize("size", [128, 64])
+def test_elastic_spread_in_place_equals_autograd_path(size: int) -> None:
+    """The in-place spread (no autograd) gives the differentiable path's floats: all three
+    pyramid levels (pooled GEMM, dense GEMM, taps) at 128 px, fewer at 64."""
+    gen = torch.Generator().manual_seed(3)
+    x = torch.nn.functional.avg_pool2d(torch.randn(4, 1, size + 8, size + 8, generator=gen), 9, 1)
+    x = x * 0.5 - 0.1
+    effect, ctx = EFFECTS["elastic_spread"], EffectContext(18.0, 24.0)
+    fast = effect.apply(x, {}, None, ctx)
+    slow = effect.apply(x.clone().requires_grad_(), {}, None, ctx)
+    torch.testing.assert_close(fast, slow.detach(), atol=1e-6, rtol=1e-6)
+    assert bool((fast >= x).all()) and not torch.equal(fast, x)
+
+
 def test_effect_fast_paths_match_their_autograd_paths() -> None:
     """The in-place (no autograd) code of each effect equals its differentiable code."""
     gen = torch.Generator().manual_seed(0)

@@ -143,9 +143,12 @@ class ElasticSpread(Effect):
         # held core as 0/1 floats: masks by multiply-add are ~10x faster than torch.where
         # on CPU and exact here (x * 1 + y * 0 == x)
         core = (pen.detach() > scalar(p["contact_scale"]) * peak).float()
-        free, held = 1 - core, pen * core
+        held = pen * core
         dx, dy = ctx.mm_per_px(x)
         sigma = as_tensor(p["sigma_mm"])
+        if not (x.requires_grad or sigma.requires_grad):
+            return ElasticSpread._spread_inplace(x, pen, core, held, scalar(sigma), dx, dy)
+        free = 1 - core
         z = pen
         level = sigma
         while float(level.detach()) / min(dx, dy) >= 1.0:
@@ -155,6 +158,30 @@ class ElasticSpread(Effect):
         # around it; elsewhere the object stays where it was (identity at sigma = 0)
         # z >= 0 (non-negative weights); sign(z) - 1 is 0 where the gel moved, -1 elsewhere
         return torch.maximum(torch.add(z, torch.sign(z) - 1, alpha=1e30), x)
+
+    @staticmethod
+    def _spread_inplace(
+        x: torch.Tensor,
+        pen: torch.Tensor,
+        core: torch.Tensor,
+        held: torch.Tensor,
+        sigma: float,
+        dx: float,
+        dy: float,
+    ) -> torch.Tensor:
+        """``_spread`` outside autograd, each step in the blur's fresh output: the same floats
+        (``free`` is 0 or 1, so ``b * free + held`` is ``addcmul``'s sum exactly), a third
+        fewer allocations and passes over the map."""
+        free = core.neg_().add_(1.0)  # core is not used after this
+        z = pen
+        level = torch.tensor(sigma)
+        while float(level) / min(dx, dy) >= 1.0:
+            z = gaussian_blur(z, level / dx, level / dy).mul_(free).add_(held)
+            level = level / 2
+        if z is pen:  # no level ran: keep pen (the caller's clamp) as it was
+            z = pen.clone()
+        z = z.add_(torch.sign(z).sub_(1.0), alpha=1e30)
+        return torch.maximum(z, x, out=z)
 
 
 class ShearSmear(Effect):
