@@ -82,6 +82,7 @@ def test_full_tiny_run_covers_every_section(tmp_path: Path) -> None:
     md = (tmp_path / "bench.md").read_text()
     assert "OpenMP" in md
     assert "Contact simulation" in md and "linearity" in md and "Training throughput" in md
+    assert "worker start-up" in md and "marginal rate" in md and "per CPU-s" in md
 
 
 def test_ratios_are_computed_from_the_measured_times(result: tuple[dict, Path]) -> None:

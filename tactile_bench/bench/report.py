@@ -242,12 +242,24 @@ def _simulation(r: dict[str, Any]) -> list[str]:
         "",
         f"- braille: **{_f(s['braille_contacts_per_s'], 0)} contacts/s** end to end "
         f"(`render_braille_set`: depth + sim image + surrogate-real image, "
-        f"{b['scaling']['4x']['work']:.0f} contacts); one-off height-field bank "
+        f"{b['scaling']['4x']['work']:.0f} contacts, {_f(b['scaling']['4x']['per_cpu_s'], 0)} "
+        f"per CPU-s); one-off height-field bank "
         f"{_f(b['setup_bank_s'], 2)} s.",
         f"- pretraining objects ({', '.join(o['objects'])}): "
         f"**{_f(s['object_frames_per_s'], 1)} frames/s** end to end "
-        f"(`build_ycb_slide_standin`, shards written, {o['scaling']['4x']['work']:.0f} frames); "
-        f"one-off scene (mesh, ray-casting scene, trajectory) {_f(o['setup_scene_s'], 2)} s.",
+        f"(`build_ycb_slide_standin`, shards written, {o['scaling']['4x']['work']:.0f} frames, "
+        f"{_f(o['scaling']['4x']['per_cpu_s'], 1)} per CPU-s with the workers' CPU); "
+        f"one-off scene (mesh, ray-casting scene, trajectory) {_f(o['setup_scene_s'], 2)} s"
+        + (
+            f"; worker start-up (spawn, imports: once a process, in an untimed first build "
+            f"of {o['scaling']['1x']['work']:.0f} frames) {_f(o['first_build_s'], 1)} s; "
+            f"marginal rate of the frames a bigger build adds (2x -> 4x, fixed costs cancel) "
+            f"{_f(o['marginal']['frames_per_s'], 1)} frames/s, "
+            f"{_f(o['marginal']['frames_per_cpu_s'], 1)} per CPU-s"
+            if "marginal" in o
+            else ""
+        )
+        + ".",
         "",
         f"Braille, cost per stage ({b['contacts']} contacts):",
         "",
