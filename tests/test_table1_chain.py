@@ -105,15 +105,18 @@ def test_finetuning_rows_start_from_their_base_rows_models(table_run: Path) -> N
     assert (base / "checkpoints").is_dir() and not (base / "finetune").exists()
 
 
-@pytest.mark.parametrize("name", ["table1", "quick"])
-def test_shipped_recipes_validate_and_report_all_nine_rows(repo: Path, name: str) -> None:
+# table1 reports the paper's rows over 3 seeds; quick.yaml's first look over 2 (a std needs 2)
+@pytest.mark.parametrize(("name", "min_seeds"), [("table1", 3), ("quick", 2)])
+def test_shipped_recipes_validate_and_report_all_nine_rows(
+    repo: Path, name: str, min_seeds: int
+) -> None:
     recipe = load_recipe(repo / "recipes" / f"{name}.yaml")
     report = recipe.stage("report")
     rows = [recipe.stage(r).config.row for r in report.inputs["rows"]]
     assert rows == list(PAPER_TABLE)
     for stage in recipe.stages:
         if stage.kind.name == "classify":
-            assert len(stage.config.seeds) >= 3
+            assert len(stage.config.seeds) >= min_seeds
 
 
 def test_set_on_one_stage_does_not_leak_through_yaml_anchors(repo: Path) -> None:
