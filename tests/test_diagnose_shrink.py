@@ -9,7 +9,7 @@ import torch
 from tactile_bench.cli import main
 from tactile_bench.diagnose.paired import load_paired
 from tactile_bench.diagnose.shrink import match_noise
-from tactile_bench.translators.diffusion.lightning_model import estimate_pixel_noise
+from tactile_bench.metrics import estimate_pixel_noise
 
 
 def _frames(noise: tuple[float, float, float], n: int = 64, seed: int = 5) -> torch.Tensor:

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.metrics import ssim_mse
+from tactile_bench.metrics import estimate_pixel_noise, ssim_mse
 from tactile_bench.testing import tiny_pairs
 from tactile_bench.translators.base import foreground_to_image
 from tactile_bench.translators.diffusion import (
@@ -17,7 +17,6 @@ from tactile_bench.translators.diffusion import (
     SAMPLERS,
     DiffusionTranslator,
     build_unet,
-    estimate_pixel_noise,
     make_sampler,
 )
 from tactile_bench.translators.diffusion.torch_model import count_parameters

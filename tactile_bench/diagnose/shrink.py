@@ -18,8 +18,8 @@ Pixel noise: zero-mean noise never lowers a paired gap, so the selection never a
 noise, and a sim (+ effects) that is cleaner than the real frames trains a classifier that
 reads noisy frames at chance (braille, 150 pairs: sim + effects 6% -> 25% once matched). Each
 training set's per-channel noise is estimated frame to frame
-(``translators.diffusion.estimate_pixel_noise``) and so is that of the fit split's real
-frames; a set cleaner than real gets white Gaussian noise up to the real level, in
+(``metrics.estimate_pixel_noise``, as the diffusion translator does) and so is that of the
+fit split's real frames; a set cleaner than real gets white Gaussian noise up to the real level, in
 ``NOISE_COPIES`` seeded copies. Estimated from the paired data only; reported under
 ``downstream.noise``. A set noisier than real is left as it is.
 """
@@ -37,7 +37,7 @@ import torch
 from tactile_bench.diagnose.candidates import make_base, render_background
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.diagnose.which import apply_effects
-from tactile_bench.metrics import fit_encoder, kid, ssim_mse
+from tactile_bench.metrics import estimate_pixel_noise, fit_encoder, kid, ssim_mse
 
 # KID only compares sets in the encoder's features: 150 steps keep a 300-pair export's
 # before/after ratio (34.4 -> 4.3 at 300 steps, 13.3 -> 1.5 at 150) for half the time
@@ -66,8 +66,6 @@ def match_noise(
     """``copies`` noisy copies (copies * N, C, S, S) of foregrounds ``x`` whose estimated
     per-channel pixel noise is raised to ``target_std`` (C,) where it is below it, the
     estimate of ``x`` and the std added (both (C,)): white Gaussian noise, seeded."""
-    from tactile_bench.translators.diffusion.lightning_model import estimate_pixel_noise
-
     own = estimate_pixel_noise(x)
     if own is None:  # too few frames to tell how noisy they are: nothing added
         own = torch.full((x.shape[1],), math.nan)
@@ -113,8 +111,6 @@ def _downstream(
         "real_accuracy": _foreground(data.real[fit_idx], data.background),
     }
     test = _foreground(data.real[held_idx[known]], data.background)
-    from tactile_bench.translators.diffusion.lightning_model import estimate_pixel_noise
-
     real_std = estimate_pixel_noise(train_sets["real_accuracy"])
     copies = 1 if real_std is None else min(NOISE_COPIES, -(-NOISE_TRAIN_IMAGES // len(fit_idx)))
     epochs = min(MAX_EPOCHS, max(2, round(CLASSIFIER_SAMPLES / (len(fit_idx) * copies))))

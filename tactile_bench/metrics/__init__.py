@@ -2,5 +2,13 @@
 
 from tactile_bench.metrics.encoder import FeatureEncoder, fit_encoder, kid, mmd2_unbiased
 from tactile_bench.metrics.image import ssim_mse
+from tactile_bench.metrics.noise import estimate_pixel_noise
 
-__all__ = ["FeatureEncoder", "fit_encoder", "kid", "mmd2_unbiased", "ssim_mse"]
+__all__ = [
+    "FeatureEncoder",
+    "estimate_pixel_noise",
+    "fit_encoder",
+    "kid",
+    "mmd2_unbiased",
+    "ssim_mse",
+]

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import statistics
 import time
 from pathlib import Path
@@ -33,6 +32,7 @@ from diffusers import DDPMScheduler, UNet2DModel
 from pydantic import Field
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.metrics.noise import estimate_pixel_noise
 from tactile_bench.translators.base import CHECKPOINT_FORMAT, Translator, TranslatorConfig
 from tactile_bench.translators.diffusion.sampling import (
     SAMPLERS,
@@ -84,30 +84,6 @@ class DiffusionConfig(TranslatorConfig):
 
 
 _NOISE_DECAY = 0.98  # the estimate averages over about the last 50 training batches
-_MIN_FRAMES = 8  # fewer frames give no usable per-pixel median
-
-
-def estimate_pixel_noise(foreground: torch.Tensor) -> torch.Tensor | None:
-    """Per-channel std (C,) of the pixel noise in a batch of frames (N, C, H, W).
-
-    Frame to frame, as a camera's noise is measured: each pixel's deviation from its median
-    over the batch is noise wherever no contact touches it, which is most of the gel. The
-    std of the deviations is taken with 3-sigma clipping (two rounds, truncation
-    corrected), so contact pixels do not count. Unlike a spatial (Laplacian) estimate this
-    also captures noise that is correlated between neighbouring pixels (demosaicing,
-    compression): a spatial estimate gave real braille frames half the std. Returns None
-    for fewer than 8 frames.
-    """
-    if len(foreground) < _MIN_FRAMES:
-        return None
-    x = foreground.float()
-    deviation = (x - x.median(dim=0).values).transpose(0, 1).reshape(x.shape[1], -1)
-    sigma = math.sqrt(math.pi / 2) * deviation.abs().mean(dim=1)  # first guess, inflated
-    for _ in range(2):
-        inside = deviation.abs() <= 3.0 * sigma[:, None]
-        kept = inside.sum(dim=1).clamp(min=1)
-        sigma = ((deviation**2 * inside).sum(dim=1) / kept).sqrt() / 0.9866  # +-3 sigma cut
-    return sigma
 
 
 class DiffusionTranslator(Translator):
