@@ -72,6 +72,8 @@ def match_noise(
         added = torch.zeros(x.shape[1])
     else:
         added = (target_std.square() - own.square()).clamp(min=0.0).sqrt()
+    if not bool((added > 0).any()):  # as noisy as real or noisier: plain copies, no draws
+        return x.repeat(copies, 1, 1, 1), own, added
     gen = torch.Generator().manual_seed(seed)
     scale = added[None, :, None, None]
     out = torch.cat([x + scale * torch.randn(x.shape, generator=gen) for _ in range(copies)])
