@@ -152,6 +152,26 @@ def _settle_press(
     return height, poses, valid
 
 
+#: frames rendered at a time along a trajectory; each chunk draws from its own generator
+TRAJECTORY_CHUNK = 64
+
+
+def chunk_generator(object_seed: int, trajectory: int, chunk: int) -> torch.Generator:
+    """The generator of one chunk of a trajectory (sim noise, surrogate randomness).
+
+    Seeded by (object, trajectory, chunk) alone, so any chunk can be rendered in any process
+    and order with the same result: the builder can split one object's frames evenly over
+    the workers.
+    """
+    seed = np.random.SeedSequence([object_seed, trajectory, chunk]).generate_state(1)[0]
+    return torch.Generator().manual_seed(int(seed))
+
+
+def trajectory_chunks(frames: int) -> int:
+    """Number of ``TRAJECTORY_CHUNK``-frame chunks of a trajectory of ``frames`` frames."""
+    return -(-frames // TRAJECTORY_CHUNK)
+
+
 def _trajectory_pairs(
     renderer: MeshDepthRenderer,
     traj: Trajectory,
@@ -159,18 +179,20 @@ def _trajectory_pairs(
     sim_optics: SimOptics,
     sim_background: torch.Tensor,
     real_sensor: SurfaceSensor,
-    generator: torch.Generator,
-    chunk: int = 64,
+    object_seed: int,
+    chunks: range,
 ) -> dict[str, Any]:
+    """The valid pairs of chunks ``chunks`` of ``traj`` (possibly none), with their meta."""
     depth, sim, real, poses, keep = [], [], [], [], []
-    for k in range(0, len(traj), chunk):
-        sl = slice(k, k + chunk)
+    for c in chunks:
+        sl = slice(c * TRAJECTORY_CHUNK, (c + 1) * TRAJECTORY_CHUNK)
         press = traj.press_mm[sl].astype(np.float64)
         true_h, true_p, ok_true = settle_press(renderer, traj.poses[sl], press)
         meas_h, _, ok_meas = settle_press(renderer, traj.measured[sl], press)
         ok = ok_true & ok_meas
         if not ok.any():
             continue
+        generator = chunk_generator(object_seed, traj.index, c)
         mask = torch.from_numpy(ok)
         with timed("sim.depth"):
             d = to_depth(meas_h[mask], gel, inplace=True)  # [mask] is a copy of our own
@@ -183,15 +205,18 @@ def _trajectory_pairs(
         with timed("uint8"):
             real.append(to_uint8(r))
         poses.append(true_p[ok])
-        keep.append(np.arange(k, k + len(press))[ok])
-    if not depth:
-        raise TactileBenchError(f"{traj.object_name} trajectory {traj.index}: no valid contact")
+        keep.append(np.arange(sl.start, sl.start + len(press))[ok])
+    frame = np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
+    s = gel.size
     return {
-        "depth": torch.cat(depth),
-        "sim": torch.cat(sim),
-        "real": torch.cat(real),
-        "poses": np.concatenate(poses),
-        "frame": np.concatenate(keep),
+        "depth": torch.cat(depth) if depth else torch.zeros(0, 1, s, s),
+        "sim": torch.cat(sim) if sim else torch.zeros(0, 3, s, s, dtype=torch.uint8),
+        "real": torch.cat(real) if real else torch.zeros(0, 3, s, s, dtype=torch.uint8),
+        "poses": np.concatenate(poses) if poses else np.zeros((0, 4, 4)),
+        "frame": frame,
+        "press_mm": traj.press_mm[frame],
+        "velocity_mm_s": traj.velocity_mm_s[frame],
+        "time_s": traj.time_s[frame].astype(np.float32),
     }
 
 
@@ -221,7 +246,7 @@ def build_ycb_slide_standin(
     """
     from tactile_bench.sensor.background import sim_background as default_sim_background
 
-    from .ycb_workers import ObjectJob, run_jobs
+    from .ycb_workers import ObjectJob, run_jobs, write_shard
 
     workers = torch.get_num_threads() if workers is None else workers
 
@@ -249,6 +274,7 @@ def build_ycb_slide_standin(
             "sim_bg": float(sim_bg.sum()),
             "real_bg": int(real_bg.long().sum()),
             "sensor": repr(real_sensor),
+            "randomness": "per chunk",  # chunk_generator; corpora seeded per trajectory rebuild
         }
     )
     old_key = None
@@ -267,11 +293,12 @@ def build_ycb_slide_standin(
     write_backgrounds(root, real_bg, sim_bg)
 
     n_frames = config.frames_per_trajectory
+    whole = trajectory_chunks(n_frames)
     total = len(config.objects) * config.n_trajectories * n_frames
     jobs = []
     for oi, name in enumerate(config.objects):
         todo = [
-            k
+            (k, 0, whole)
             for k in range(config.n_trajectories)
             if not (resumable and (root / f"shards/{name}_{k}.npz").exists())
         ]
@@ -285,9 +312,17 @@ def build_ycb_slide_standin(
     bar = tqdm(total=total, desc="ycb-slide stand-in", unit="pair", disable=not progress)
     n_todo = sum(len(j.todo) for j in jobs)
     bar.update(n_frames * (len(config.objects) * config.n_trajectories - n_todo))  # on disk
-    for built in run_jobs(jobs, workers):
-        done += sum(built.values())
-        bar.update(n_frames * len(built))
+    split: dict[tuple[int, int], dict[tuple[int, int, int], dict]] = {}  # trajectories in parts
+    for job, built in run_jobs(jobs, workers):
+        done += sum(built.written.values())
+        bar.update(n_frames * len(built.written))
+        for (k, first, stop), pairs in built.pieces.items():
+            parts = split.setdefault((job.index, k), {})
+            parts[(k, first, stop)] = pairs
+            bar.update(min(stop * TRAJECTORY_CHUNK, n_frames) - first * TRAJECTORY_CHUNK)
+            if sum(b - a for _, a, b in parts) == whole:  # all here: join them in order
+                done += write_shard(job, k, [parts[p] for p in sorted(parts)])
+                del split[(job.index, k)]
     shards = []
     with timed("io"):
         for oi, name in enumerate(config.objects):

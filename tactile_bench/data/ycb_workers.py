@@ -1,7 +1,9 @@
 """Building the YCB-Slide stand-in corpus in worker processes, one object (or part) a job.
 
-Each object's trajectories depend only on the object's seed and their index, so objects can
-be built in any order and in any process with the same corpus. Ray casting holds the GIL
+Each 64-frame chunk of a trajectory depends only on the object's seed, the trajectory and
+the chunk (``ycb_slide.chunk_generator``), so objects, and the chunks of one object when
+there are fewer objects than workers, can be built in any order and in any process with the
+same corpus; a trajectory split over jobs is joined by the caller. Ray casting holds the GIL
 (``embreex``), so processes, not threads, are what puts both cores to work. Workers are
 spawned (not forked: the parent's OpenMP and Embree thread pools do not survive a fork),
 run torch on one thread each, and are kept for later builds (spawning one costs ~2 s).
@@ -20,6 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.objects import object_parts
 from tactile_bench.geometry.trajectories import exposed_surface, sliding_trajectories
 from tactile_bench.sensor.depth import GelSpec
@@ -29,12 +32,21 @@ from tactile_bench.sensor.timing import StageTimer, active_timer
 from tactile_bench.sensor.timing import stage as timed
 
 from .pairs import PairSet, to_uint8
-from .ycb_slide import StandinConfig, SurfaceSensor, _trajectory_pairs
+from .ycb_slide import (
+    TRAJECTORY_CHUNK,
+    StandinConfig,
+    SurfaceSensor,
+    _trajectory_pairs,
+    trajectory_chunks,
+)
+
+#: a part of one trajectory: (trajectory, first chunk, stop chunk), ``TRAJECTORY_CHUNK``s
+Piece = tuple[int, int, int]
 
 
 @dataclass
 class ObjectJob:
-    """The trajectories ``todo`` of one object: everything a worker process needs."""
+    """The trajectory pieces ``todo`` of one object: everything a worker process needs."""
 
     name: str
     index: int
@@ -45,20 +57,66 @@ class ObjectJob:
     real_sensor: SurfaceSensor
     real_bg: torch.Tensor
     root: Path
-    todo: list[int]
+    todo: list[Piece]
     timing: bool = False
 
+    @property
+    def object_seed(self) -> int:
+        return self.config.seed * 1000 + self.index
 
-def _build_object(job: ObjectJob) -> dict[int, int]:
-    """Build and write the shards of ``job.todo``; returns {trajectory: pairs written}.
 
-    Everything here depends only on the object's seed and the trajectory index, so objects
-    can be built in any order and in any process with the same result.
+@dataclass
+class Built:
+    """What a job made: {trajectory: pairs} of the shards it wrote, and the pairs of the
+    pieces of trajectories split over several jobs, for the caller to join
+    (``write_shard``)."""
+
+    written: dict[int, int]
+    pieces: dict[Piece, dict[str, Any]]
+
+
+def write_shard(job: ObjectJob, k: int, pieces: list[dict[str, Any]]) -> int:
+    """Write trajectory ``k``'s shard from its pieces (in frame order); returns its pairs."""
+    out = {key: _cat([p[key] for p in pieces]) for key in pieces[0]}
+    n = len(out["frame"])
+    if not n:
+        raise TactileBenchError(f"{job.name} trajectory {k}: no valid contact")
+    with timed("io"):
+        PairSet(
+            depth=out["depth"],
+            real=out["real"],
+            real_background=job.real_bg,
+            real_bg_index=torch.zeros(n, dtype=torch.int64),
+            sim=out["sim"],
+            sim_background=to_uint8(job.sim_bg),
+            meta={
+                "object": np.full(n, job.index, dtype=np.int64),
+                "trajectory": np.full(n, job.index * job.config.n_trajectories + k, dtype=np.int64),
+                "frame": out["frame"].astype(np.int64),
+                "press_mm": out["press_mm"],
+                "velocity_mm_s": out["velocity_mm_s"],
+                "time_s": out["time_s"],
+                "pose": out["poses"].astype(np.float32),
+            },
+        ).save_shard(job.root / f"shards/{job.name}_{k}.npz")
+    return n
+
+
+def _cat(parts: list[Any]) -> Any:
+    return torch.cat(parts) if isinstance(parts[0], torch.Tensor) else np.concatenate(parts)
+
+
+def _build_object(job: ObjectJob) -> Built:
+    """Build the pieces ``job.todo``: whole trajectories are written as shards here, parts
+    of trajectories are returned to be joined with the rest.
+
+    Everything here depends only on the object's seed, the trajectory index and the chunk,
+    so objects and chunks can be built in any order and in any process with the same result.
     """
     import trimesh
 
-    config, gel, oi, name = job.config, job.gel, job.index, job.name
-    obj_seed = config.seed * 1000 + oi
+    config, gel, name = job.config, job.gel, job.name
+    obj_seed = job.object_seed
     with timed("objects"):
         parts = object_parts(name, obj_seed)
     with timed("surface"):
@@ -78,35 +136,24 @@ def _build_object(job: ObjectJob) -> dict[int, int]:
         )
     with timed("mesh_bvh"):
         renderer = MeshDepthRenderer.from_trimesh(trimesh.util.concatenate(parts), gel)
-    built = {}
+    built = Built({}, {})
+    whole = trajectory_chunks(config.frames_per_trajectory)
     try:
-        for k in job.todo:
-            traj = trajs[k]
-            gen = torch.Generator().manual_seed(obj_seed * 100 + k)
+        for k, first, stop in job.todo:
             out = _trajectory_pairs(
-                renderer, traj, gel, job.sim_optics, job.sim_bg, job.real_sensor, gen
+                renderer,
+                trajs[k],
+                gel,
+                job.sim_optics,
+                job.sim_bg,
+                job.real_sensor,
+                obj_seed,
+                range(first, stop),
             )
-            f = out["frame"]
-            n = len(f)
-            with timed("io"):
-                PairSet(
-                    depth=out["depth"],
-                    real=out["real"],
-                    real_background=job.real_bg,
-                    real_bg_index=torch.zeros(n, dtype=torch.int64),
-                    sim=out["sim"],
-                    sim_background=to_uint8(job.sim_bg),
-                    meta={
-                        "object": np.full(n, oi, dtype=np.int64),
-                        "trajectory": np.full(n, oi * config.n_trajectories + k, dtype=np.int64),
-                        "frame": f.astype(np.int64),
-                        "press_mm": traj.press_mm[f],
-                        "velocity_mm_s": traj.velocity_mm_s[f],
-                        "time_s": traj.time_s[f].astype(np.float32),
-                        "pose": out["poses"].astype(np.float32),
-                    },
-                ).save_shard(job.root / f"shards/{name}_{k}.npz")
-            built[k] = n
+            if (first, stop) == (0, whole):
+                built.written[k] = write_shard(job, k, [out])
+            else:
+                built.pieces[(k, first, stop)] = out
     finally:
         renderer.close()
     return built
@@ -155,23 +202,53 @@ def _pool(workers: int) -> Any:
 
 
 def _split_jobs(jobs: list[ObjectJob], workers: int) -> list[ObjectJob]:
-    """Fewer objects than workers: split each object's trajectories into groups (each
-    group pays the object's set-up again, in its own process) so every worker has work."""
+    """Fewer objects than workers: split each object's chunks into groups of about equal
+    frames (each group pays the object's set-up again, in its own process) so every
+    worker has as much work (5 trajectories over 2 workers: 2.5 each, not 3 and 2)."""
     if len(jobs) >= workers:
         return jobs
     per_object = -(-workers // len(jobs))
     out = []
     for job in jobs:
-        groups = min(per_object, len(job.todo))
-        for g in range(groups):
-            out.append(dataclasses.replace(job, todo=job.todo[g::groups]))
+        frames = job.config.frames_per_trajectory
+        units = [  # (trajectory, chunk, frames in it)
+            (k, c, min(TRAJECTORY_CHUNK, frames - c * TRAJECTORY_CHUNK))
+            for k, first, stop in job.todo
+            for c in range(first, stop)
+        ]
+        out += _groups(job, units, min(per_object, len(units)))
     return out
 
 
-def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[dict[int, int]]:
-    """Run the object jobs, in this process or spread over ``workers`` processes.
+def _groups(job: ObjectJob, units: list[tuple[int, int, int]], groups: int) -> list[ObjectJob]:
+    """``job`` cut into ``groups`` jobs of consecutive chunks with about equal frames."""
+    total = sum(u[2] for u in units)
+    bounds = [round(total * g / groups) for g in range(1, groups + 1)]
+    cut: list[list[tuple[int, int]]] = [[] for _ in range(groups)]
+    done = 0
+    for k, c, size in units:
+        # the chunk goes to the group its middle frame falls in
+        g = next(i for i, b in enumerate(bounds) if done + size / 2 <= b)
+        cut[g].append((k, c))
+        done += size
+    jobs = []
+    for chunks in cut:
+        pieces: list[Piece] = []
+        for k, c in chunks:
+            if pieces and pieces[-1][0] == k and pieces[-1][2] == c:
+                pieces[-1] = (k, pieces[-1][1], c + 1)
+            else:
+                pieces.append((k, c, c + 1))
+        if pieces:
+            jobs.append(dataclasses.replace(job, todo=pieces))
+    return jobs
 
-    Each object (and each trajectory) is independent (own seeds), so the corpus is the same
+
+def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[tuple[ObjectJob, Built]]:
+    """Run the object jobs, in this process or spread over ``workers`` processes; yields
+    each (job, what it built) as it finishes.
+
+    Each object, trajectory and chunk is independent (own seeds), so the corpus is the same
     either way; ray casting holds the GIL, so processes (not threads) are what puts both
     cores to work. Workers run torch on one thread each.
     """
@@ -180,7 +257,7 @@ def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[dict[int, int]]:
     workers = min(workers, len(jobs))
     if workers <= 1:
         for job in jobs:
-            yield _build_object(job)
+            yield job, _build_object(job)
         return
     from concurrent.futures import as_completed
     from concurrent.futures.process import BrokenProcessPool
@@ -195,10 +272,11 @@ def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[dict[int, int]]:
         try:
             for future in as_completed(futures):
                 built, times = future.result()
-                left.remove(futures[future])
+                job = futures[future]
+                left.remove(job)
                 if timer is not None and times is not None:
                     timer.merge(times["wall"], times["cpu"], times["process_cpu"])
-                yield built
+                yield job, built
         finally:  # an error or an interrupt: do not leave the pool busy with the rest
             for future in futures:
                 future.cancel()
@@ -210,4 +288,4 @@ def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[dict[int, int]]:
             stacklevel=3,
         )
         for job in left:
-            yield _build_object(job)
+            yield job, _build_object(job)
