@@ -312,15 +312,16 @@ def build_ycb_slide_standin(
     bar = tqdm(total=total, desc="ycb-slide stand-in", unit="pair", disable=not progress)
     n_todo = sum(len(j.todo) for j in jobs)
     bar.update(n_frames * (len(config.objects) * config.n_trajectories - n_todo))  # on disk
-    split: dict[tuple[int, int], dict[tuple[int, int, int], dict]] = {}  # trajectories in parts
+    # trajectories built in pieces: (object, trajectory) -> {(first, stop chunk): pairs}
+    split: dict[tuple[int, int], dict[tuple[int, int], dict]] = {}
     for job, built in run_jobs(jobs, workers):
         done += sum(built.written.values())
         bar.update(n_frames * len(built.written))
         for (k, first, stop), pairs in built.pieces.items():
             parts = split.setdefault((job.index, k), {})
-            parts[(k, first, stop)] = pairs
+            parts[first, stop] = pairs
             bar.update(min(stop * TRAJECTORY_CHUNK, n_frames) - first * TRAJECTORY_CHUNK)
-            if sum(b - a for _, a, b in parts) == whole:  # all here: join them in order
+            if sum(b - a for a, b in parts) == whole:  # all here: join them in order
                 done += write_shard(job, k, [parts[p] for p in sorted(parts)])
                 del split[(job.index, k)]
     shards = []

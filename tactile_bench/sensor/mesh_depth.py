@@ -220,13 +220,19 @@ class MeshDepthRenderer:
         with timed("height"):
             return self._render_height(poses)
 
-    def _render_height(self, poses: np.ndarray | torch.Tensor) -> torch.Tensor:
+    def _render_height(
+        self,
+        poses: np.ndarray | torch.Tensor,
+        xs: np.ndarray | None = None,
+        ys: np.ndarray | None = None,
+    ) -> torch.Tensor:
+        """Heights of the rays at pixel centres ``xs``, ``ys`` (default: every pixel)."""
         p = check_poses(poses)
         if self._cast is None:
             raise TactileBenchError("mesh_depth: renderer already closed")
         if self.backend == "embree":
-            return self._render_embree(p)
-        return self._render_rays(p)
+            return self._render_embree(p, xs, ys)
+        return self._render_rays(p, xs, ys)
 
     def peak_height(self, poses: np.ndarray | torch.Tensor, step: int = 4) -> np.ndarray:
         """(N,) highest signed height, mm, seen by every ``step``-th pixel in each direction.
@@ -235,18 +241,12 @@ class MeshDepthRenderer:
         callers that move a pose before rendering it (``data.ycb_slide.settle_press``): it
         can miss a peak narrower than ``step`` pixels, never overshoots one.
         """
-        p = check_poses(poses)
-        if self._cast is None:
-            raise TactileBenchError("mesh_depth: renderer already closed")
         side = self.gel.size * self.gel.oversample
         keep = np.zeros((side, side), dtype=bool)
         keep[step // 2 :: step, step // 2 :: step] = True
         keep = keep.ravel()
         with timed("height.peak"):
-            if self.backend == "embree":
-                h = self._render_embree(p, self._xs[keep], self._ys[keep])
-            else:
-                h = self._render_rays(p, self._xs[keep], self._ys[keep])
+            h = self._render_height(poses, self._xs[keep], self._ys[keep])
         return h.flatten(1).amax(1).numpy().astype(np.float64)
 
     def _render_rays(
