@@ -34,7 +34,8 @@ def _machine(r: dict[str, Any]) -> list[str]:
         f"- machine: {m['cpu']} ({m['cpu_capability']}), {m['cores']} cores "
         f"({m.get('cores_usable')} usable), torch {m['torch']} with {m['torch_threads']} "
         f"thread(s), diffusers {m['diffusers']}, lightning {m['lightning']}, "
-        f"Python {m['python']}; LD_PRELOAD: `{m['ld_preload'] or 'none'}`",
+        f"Python {m['python']}; LD_PRELOAD: `{m['ld_preload'] or 'none'}`; malloc: "
+        f"{m.get('malloc', 'default')}",
         f"- load average (1, 5, 15 min) at start {r['loadavg_start']}, at end "
         f"{r['loadavg_end']}: above the core count means other processes shared the CPU "
         "and absolute figures are low; the ratios were measured side by side.",

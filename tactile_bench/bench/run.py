@@ -25,6 +25,7 @@ from typing import Any
 
 import torch
 
+from tactile_bench import allocator
 from tactile_bench.bench import sampling, simulation, training
 from tactile_bench.bench.threads import thread_settings
 from tactile_bench.bench.timing import torch_threads
@@ -123,6 +124,7 @@ def machine_info() -> dict[str, Any]:
         "python": sys.version.split()[0],
         "platform": platform.platform(),
         "ld_preload": os.environ.get("LD_PRELOAD", ""),
+        "malloc": allocator.describe(),
     }
 
 

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from tactile_bench.allocator import keep_freed_memory
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.objects import object_parts
 from tactile_bench.geometry.trajectories import exposed_surface, sliding_trajectories
@@ -161,6 +162,7 @@ def _build_object(job: ObjectJob) -> Built:
 
 def _worker_init() -> None:
     torch.set_num_threads(1)  # one process per core: no intra-op threads on top
+    keep_freed_memory()  # the pool's own processes: see tactile_bench.allocator
 
 
 def _build_object_timed(job: ObjectJob) -> tuple[dict[int, int], dict | None]:
