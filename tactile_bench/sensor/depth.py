@@ -70,13 +70,19 @@ def _thetas(bank: HeightFieldBank, poses: Poses, gel: GelSpec) -> torch.Tensor:
 def _affine_grid(theta: torch.Tensor, side: int) -> torch.Tensor:
     """``F.affine_grid(theta, [k, 1, side, side], align_corners=False)``, ~3x faster.
 
-    The map is affine, so the grid is a row term plus a column term: one broadcast add
-    instead of a batched matmul against the homogeneous base grid (same values to ~1 ulp).
+    The map is affine, so the grid is a row term plus a column term: broadcast adds instead
+    of a batched matmul against the homogeneous base grid (same values to ~1 ulp). One add
+    per coordinate, each along a whole row, into the interleaved grid: ~1.7x faster than
+    one add over (x, y) pairs, whose innermost run of 2 values defeats vectorisation.
     """
     base = (torch.arange(side, dtype=theta.dtype) * 2 + 1) / side - 1
     t = theta.transpose(1, 2)[:, None, None]  # (k, 1, 1, 3, 2): columns x, y, offset
     along_x = torch.addcmul(t[..., 2, :], base[None, None, :, None], t[..., 0, :])  # (k,1,W,2)
-    return along_x + base[None, :, None, None] * t[..., 1, :]  # + (k, H, 1, 2)
+    along_y = base[None, :, None, None] * t[..., 1, :]  # (k, H, 1, 2)
+    grid = torch.empty(theta.shape[0], side, side, 2, dtype=theta.dtype)
+    for c in range(2):
+        torch.add(along_x[..., c], along_y[..., c], out=grid[..., c])
+    return grid
 
 
 def render_height(
