@@ -376,3 +376,21 @@ def test_default_corpus_poses_are_proper_rotations() -> None:
             np.testing.assert_allclose(
                 rot @ rot.transpose(0, 2, 1), np.tile(np.eye(3), (160, 1, 1)), atol=1e-6
             )
+
+
+def test_a_failing_skip_stops_the_threaded_build_with_its_error(bank) -> None:
+    """The parts after the first wait for their generators; a skip that raises must not
+    leave them waiting."""
+    from tactile_bench.data.braille import render_braille_set
+    from tactile_bench.sensor.surrogate import SurrogateDigit
+
+    class Broken(SurrogateDigit):
+        def skip_random(self, n: int, gel: GelSpec, generator: torch.Generator) -> None:
+            raise RuntimeError("skip failed")
+
+    gel, real = GelSpec(size=16), Broken.from_profile("digit")
+    poses = classifier_protocol(CHARS).index(torch.arange(0, 1188, 3))
+    bg = torch.full((3, 16, 16), 100, dtype=torch.uint8)
+    gens = (torch.Generator().manual_seed(1), torch.Generator().manual_seed(2))
+    with pytest.raises(RuntimeError, match="skip failed"):
+        render_braille_set(bank, poses, gel, SimOptics(), bg, real, bg, *gens, threads=2)
