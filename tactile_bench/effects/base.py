@@ -253,7 +253,18 @@ def per_sub_batch(
         sliced = isinstance(x, torch.Tensor) and x.dim() > 0 and x.shape[0] == n
         return x[i : i + size] if sliced else x
 
-    return torch.cat([fn(*(part(x, i) for x in xs)) for i in range(0, n, size)])
+    first = fn(*(part(x, 0) for x in xs))
+    rest = (fn(*(part(x, i) for x in xs)) for i in range(size, n, size))
+    if first.requires_grad:
+        return torch.cat([first, *rest])
+    # each slice copied into the result while still in cache (``cat`` at the end reads them
+    # all back from memory): the same values
+    out = first.new_empty((n, *first.shape[1:]))
+    out[:size].copy_(first)
+    del first
+    for i, result in zip(range(size, n, size), rest, strict=True):
+        out[i : i + size].copy_(result)
+    return out
 
 
 def scalar(value: ParamValue) -> float:

@@ -355,6 +355,7 @@ class StreamCompression(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> torch.Tensor:
+        if not len(x):
+            return x
         q = scalar(p["quality"])
-        parts = [jpeg_approx(c, q, self.native_hw) for c in x.split(self.chunk)]
-        return torch.cat(parts) if len(parts) > 1 else parts[0] if parts else x
+        return per_sub_batch(lambda c: jpeg_approx(c, q, self.native_hw), x, size=self.chunk)
