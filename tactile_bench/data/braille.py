@@ -249,11 +249,10 @@ def _render_range(
     """Depth, sim and real images of contacts ``start:stop``, ``chunk`` at a time
     (``depths``: their ``_sim_depths``, when already made)."""
     bank, poses, gel, sim_optics, sim_background, real_sensor, chunk, bar = args
-    depth, sim, real = [], [], []
-    for j, k in enumerate(range(start, stop, chunk)):
+    depth = _sim_depths(args, start, stop) if depths is None else depths
+    sim, real = [], []
+    for k, d in zip(range(start, stop, chunk), depth, strict=True):
         part = poses.index(slice(k, min(k + chunk, stop)))
-        d = _sim_depths(args, k, k + len(part))[0] if depths is None else depths[j]
-        depth.append(d)
         with timed("sim.optics"):
             s = sim_optics.render(d, sim_background, sim_gen, gel)
         with timed("uint8"):
@@ -299,7 +298,7 @@ def _render_parallel(
 
     def work(i: int) -> None:
         try:
-            depths = _sim_depths(args, cuts[i], cuts[i + 1]) if i else None
+            depths = _sim_depths(args, cuts[i], cuts[i + 1])  # draws nothing: no need to wait
             ready[i].wait()
             if gens[i] is not None:  # else skipping failed: raised in the calling thread
                 results[i] = _render_range(args, cuts[i], cuts[i + 1], *gens[i], depths)
