@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from tactile_bench import hardware
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.metrics import estimate_pixel_noise, ssim_mse
 from tactile_bench.testing import tiny_pairs
@@ -108,11 +109,46 @@ def test_ema_tracks_training_and_is_optional(tmp_path: Path) -> None:
     assert without.ema_unet is None and without.inference_unet is without.unet
 
 
-def test_fp32_and_bf16_both_train(tmp_path: Path) -> None:
-    for bf16 in (False, True):
-        translator = fitted(tmp_path / str(bf16), bf16=bf16)
-        depth, _ = tiny_pairs(n=2, size=32)
-        assert torch.isfinite(translator.translate_foreground(depth)).all()
+@pytest.mark.parametrize("precision", ["32-true", "bf16-mixed"])
+def test_fp32_and_bf16_both_train(tmp_path: Path, precision: str) -> None:
+    # tiny on purpose: on a CPU without native bf16 (AVX2) bf16 runs 50-100x slower
+    translator = fitted(tmp_path, precision=precision)
+    assert translator.training_precision() == precision
+    assert translator.inference_precision() == precision
+    assert translator._autocast()._enabled == (precision == "bf16-mixed")
+    depth, _ = tiny_pairs(n=2, size=32)
+    assert torch.isfinite(translator.translate_foreground(depth)).all()
+
+
+@pytest.mark.parametrize("native", [False, True])
+def test_auto_precision_follows_the_hardware(monkeypatch: pytest.MonkeyPatch, native: bool) -> None:
+    monkeypatch.setattr(hardware, "native_bf16", lambda device="cpu": native)
+    translator = DiffusionTranslator(TINY)
+    expected = "bf16-mixed" if native else "32-true"
+    assert translator.config.precision == "auto"
+    assert translator.training_precision() == expected
+    assert translator.inference_precision() == expected
+    assert translator._autocast()._enabled == native
+    # an explicit trainer precision wins over the config's for the fit
+    assert translator.training_precision({"precision": "32-true"}) == "32-true"
+
+
+def test_legacy_bf16_key_still_loads(tmp_path: Path) -> None:
+    assert DiffusionTranslator({**TINY, "bf16": True}).config.precision == "auto"
+    assert DiffusionTranslator({**TINY, "bf16": False}).config.precision == "32-true"
+    with pytest.raises(TactileBenchError, match="'bf16' and 'precision' both given"):
+        DiffusionTranslator({**TINY, "bf16": False, "precision": "32-true"})
+    with pytest.raises(TactileBenchError, match="'bf16'"):
+        DiffusionTranslator({**TINY, "bf16": "maybe"})
+    with pytest.raises(TactileBenchError, match="'precision'"):
+        DiffusionTranslator({**TINY, "precision": "fp16"})
+    # a checkpoint written before ``precision`` existed
+    path = DiffusionTranslator({**TINY, "precision": "32-true"}).save(tmp_path / "old.pt")
+    payload = torch.load(path, weights_only=True)
+    del payload["config"]["precision"]
+    payload["config"]["bf16"] = False
+    torch.save(payload, path)
+    assert DiffusionTranslator.load(path).config.precision == "32-true"
 
 
 def test_save_pretrained_round_trip(tmp_path: Path) -> None:

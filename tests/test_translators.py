@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from importlib.metadata import EntryPoint
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
@@ -114,3 +115,33 @@ def test_checkpoint_of_another_translator_is_rejected(tmp_path: Path) -> None:
 def test_bad_translator_config_names_the_key() -> None:
     with pytest.raises(TactileBenchError, match="colour_match.*'lr'"):
         registry.create_translator("colour_match", {"lr": "fast"})
+
+
+@pytest.mark.parametrize("native", [False, True])
+def test_fit_trains_in_the_precision_auto_resolves_to(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, native: bool
+) -> None:
+    """Every translator's fit: the config's ``precision`` (default auto) reaches the Trainer,
+    and a recipe's ``trainer: {precision: ...}`` wins over it."""
+    from lightning.pytorch.callbacks import Callback
+
+    from tactile_bench import hardware
+    from tactile_bench.testing import tiny_pairs
+    from tactile_bench.translators import create_translator
+
+    class Seen(Callback):
+        def __init__(self) -> None:
+            self.precision: list[str] = []
+
+        def on_train_start(self, trainer: Any, pl_module: Any) -> None:
+            self.precision.append(trainer.precision)
+
+    monkeypatch.setattr(hardware, "native_bf16", lambda device="cpu": native)
+    depth, foreground = tiny_pairs(n=4, size=16)
+    seen = Seen()
+    for run, trainer in enumerate([{}, {"precision": "32-true"}]):
+        translator = create_translator("colour_match", {"max_steps": 1, "batch_size": 4})
+        assert translator.config.precision == "auto"
+        settings = {"enable_progress_bar": False, "callbacks": [seen], **trainer}
+        translator.fit_pairs(depth, foreground, tmp_path / str(run), settings)
+    assert seen.precision == ["bf16-mixed" if native else "32-true", "32-true"]

@@ -22,6 +22,7 @@ from torch.utils.data import DataLoader, TensorDataset
 
 import tactile_bench
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.hardware import Precision, trainer_precision
 from tactile_bench.io import atomic_torch_save
 from tactile_bench.training import (
     FitReport,
@@ -35,12 +36,19 @@ CHECKPOINT_FORMAT = 1
 
 
 class TranslatorConfig(BaseModel):
-    """Base of every translator's typed config: unknown keys are errors, not silently ignored."""
+    """Base of every translator's typed config: unknown keys are errors, not silently ignored.
+
+    ``precision`` is the fit's Lightning precision (a recipe's ``trainer: {precision: ...}``
+    overrides it); ``auto`` is bf16 autocast only where the hardware has bf16 arithmetic
+    (``tactile_bench.hardware``), since elsewhere bf16 is emulated and many times slower.
+    Translators that sample with networks may also use it at inference (``diffusion`` does).
+    """
 
     model_config = ConfigDict(extra="forbid")
     seed: int = 0
     batch_size: int = Field(default=32, ge=1)
     max_steps: int = Field(default=200, ge=0)
+    precision: Precision = "auto"
 
 
 def _why_unreadable(exc: Exception) -> str:
@@ -90,15 +98,24 @@ class Translator(L.LightningModule):
         except ValidationError as exc:
             first = exc.errors()[0]
             key = ".".join(str(part) for part in first["loc"])
-            raise TactileBenchError(
-                f"translator {cls.name!r}: config key {key!r}: {first['msg']}"
-            ) from None
+            where = f"config key {key!r}: " if key else ""  # a whole-config check names its keys
+            message = first["msg"].removeprefix("Value error, ")
+            raise TactileBenchError(f"translator {cls.name!r}: {where}{message}") from None
 
     def translate_foreground(
         self, depth: torch.Tensor, generator: torch.Generator | None = None
     ) -> torch.Tensor:
         """Depth -> foreground (N, 3, S, S) around 0.5; the part each translator defines."""
         raise NotImplementedError
+
+    def training_precision(self, trainer: dict[str, Any] | None = None) -> Any:
+        """The Lightning precision ``fit_pairs`` trains in with these ``trainer`` settings:
+        theirs when they set one, else the config's, with ``auto`` resolved for the device."""
+        return trainer_precision(trainer or {}, self.config.precision)
+
+    def inference_precision(self) -> str:
+        """The precision ``translate`` computes in: fp32 unless a translator autocasts."""
+        return "32-true"
 
     def fit_pairs(
         self,
@@ -111,7 +128,8 @@ class Translator(L.LightningModule):
         """Fit on (depth, real foreground) pairs with a Lightning Trainer.
 
         ``trainer`` passes straight through to ``lightning.Trainer`` (accelerator,
-        devices, strategy, precision ...), so the same call scales out; its extra key
+        devices, strategy, precision ...), so the same call scales out; without a
+        ``precision`` there, the config's applies (``auto``: see ``hardware``); its extra key
         ``checkpoint_every_n_steps`` sets how often ``out_dir/checkpoints/last.ckpt`` is
         written. A fit that finds that checkpoint resumes from it (see ``training``).
         """
@@ -136,6 +154,7 @@ class Translator(L.LightningModule):
             "log_every_n_steps": 10,
         }
         settings.update(trainer or {})
+        settings["precision"] = self.training_precision(settings)
         config = self.config.model_dump(mode="json")
         start = self.state_dict()  # fine-tuning: the weights it starts from matter too
         key = fingerprint(self.name, config, result_settings(settings), depth, foreground, start)

@@ -29,9 +29,10 @@ from typing import Any, Literal
 import torch
 import torch.nn.functional as F
 from diffusers import DDPMScheduler, UNet2DModel
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.hardware import resolve_precision
 from tactile_bench.metrics.noise import estimate_pixel_noise
 from tactile_bench.translators.base import CHECKPOINT_FORMAT, Translator, TranslatorConfig
 from tactile_bench.translators.diffusion.sampling import (
@@ -59,8 +60,11 @@ class DiffusionConfig(TranslatorConfig):
     prediction every solver step is already a denoised estimate, and on the braille test set
     DPM-Solver++ keeps DDPM-500's SSIM from 1 step up; 4 steps (two second-order steps
     between first-order ones) are over 100x faster than DDPM-500 on the same network.
-    bf16 autocast, channels_last activations and chunks of 32 images (which stay in cache;
-    128 were slower) each add speed at inference.
+    channels_last activations and chunks of 32 images (which stay in cache; 128 were slower)
+    each add speed at inference, and so does bf16 autocast where the CPU has bf16 arithmetic
+    (AVX-512-BF16, AMX): ``precision: auto`` (inherited) trains and samples in bf16 there and
+    in fp32 elsewhere, where emulated bf16 is 50-100x slower. ``bf16: true/false``, the key before
+    ``precision``, still loads: true (its old default) as ``auto``, false as ``32-true``.
     """
 
     max_steps: int = Field(default=1000, ge=0)
@@ -78,9 +82,29 @@ class DiffusionConfig(TranslatorConfig):
     foreground_scale: float = Field(default=4.0, gt=0)
     ema: bool = False
     ema_decay: float = Field(default=0.999, ge=0.0, lt=1.0)
-    bf16: bool = True
     channels_last: bool = True
     observation_noise: bool = True
+
+    @model_validator(mode="before")
+    @classmethod
+    def _legacy_bf16(cls, data: Any) -> Any:
+        """Configs and checkpoints written before ``precision`` carry ``bf16: true/false``."""
+        if not isinstance(data, dict) or "bf16" not in data:
+            return data
+        data = dict(data)
+        bf16 = data.pop("bf16")
+        if "precision" in data:
+            raise ValueError(
+                "config keys 'bf16' and 'precision' both given: bf16 is the old name of "
+                "precision (true = auto, false = 32-true); give precision only"
+            )
+        if not isinstance(bf16, bool):
+            raise ValueError(
+                f"config key 'bf16' (old name of precision): must be true or false, got {bf16!r}"
+            )
+        # true was the default, not a choice: it becomes the new default
+        data["precision"] = "auto" if bf16 else "32-true"
+        return data
 
 
 _NOISE_DECAY = 0.98  # the estimate averages over about the last 50 training batches
@@ -123,8 +147,16 @@ class DiffusionTranslator(Translator):
     def to_foreground(self, x: torch.Tensor) -> torch.Tensor:
         return (x / self.config.foreground_scale + 0.5).clamp(0.0, 1.0)
 
+    def inference_precision(self) -> str:
+        """The config's precision resolved for the device sampling runs on."""
+        return resolve_precision(self.config.precision, self.device.type)
+
     def _autocast(self) -> torch.autocast:
-        return torch.autocast(self.device.type, torch.bfloat16, enabled=self.config.bf16)
+        """bf16 autocast for sampling iff the resolved precision is bf16. Training has none
+        of its own: the Trainer's precision (``fit_pairs``) autocasts the whole step, so an
+        explicit ``trainer: {precision: ...}`` is never undone by a nested autocast here."""
+        enabled = self.inference_precision() == "bf16-mixed"
+        return torch.autocast(self.device.type, torch.bfloat16, enabled=enabled)
 
     @property
     def inference_unet(self) -> UNet2DModel:
@@ -141,12 +173,14 @@ class DiffusionTranslator(Translator):
         t = torch.randint(0, self.config.train_timesteps, (len(x0),), device=x0.device)
         noisy = self.noise_scheduler.add_noise(x0, noise, t)
         target = TARGETS[self.config.prediction](self.noise_scheduler, x0, noise, t)
-        with self._autocast():
-            output = conditional_output(self.unet, noisy, self.condition(depth), t)
+        # No autocast of our own: under bf16-mixed the Trainer autocasts the whole step (one
+        # switch, the fit's precision); of these ops only the network's convs and linears cast.
+        output = conditional_output(self.unet, noisy, self.condition(depth), t)
         loss = F.mse_loss(output.float(), target)
         self.log("train_loss", loss, prog_bar=True, batch_size=len(x0))
         if self.config.observation_noise:
-            self._track_pixel_noise(foreground)
+            with torch.autocast(self.device.type, enabled=False):  # an fp32 statistic
+                self._track_pixel_noise(foreground)
         return loss
 
     @torch.no_grad()
