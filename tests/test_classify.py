@@ -224,3 +224,38 @@ def test_training_writes_csv_and_offline_wandb(
     runs = list((tmp_path / "logs" / "wandb").glob("offline-run-*"))
     assert len(runs) == 1
     assert list(runs[0].glob("run-*.wandb"))
+
+
+def test_precision_defaults_to_auto_and_rejects_unknown_values() -> None:
+    assert ClassifierConfig().precision == "auto"
+    assert ClassifierConfig(precision="bf16-mixed").precision == "bf16-mixed"
+    with pytest.raises(ValueError, match="precision must be one of auto, 32-true, bf16-mixed"):
+        ClassifierConfig(precision="bf16")
+
+
+@pytest.mark.parametrize("native", [False, True])
+def test_training_runs_in_the_precision_auto_resolves_to(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, native: bool
+) -> None:
+    from lightning.pytorch.callbacks import Callback
+
+    from tactile_bench import hardware
+    from tactile_bench.classify.train import classifier_precision
+
+    class Seen(Callback):
+        def __init__(self) -> None:
+            self.precision: list[str] = []
+
+        def on_train_start(self, trainer: object, pl_module: object) -> None:
+            self.precision.append(trainer.precision)  # type: ignore[attr-defined]
+
+    monkeypatch.setattr(hardware, "native_bf16", lambda device="cpu": native)
+    expected = "bf16-mixed" if native else "32-true"
+    config = ClassifierConfig(width=4, blocks=(1,), batch_size=9, epochs=1, precise_bn_images=0)
+    assert classifier_precision(config) == expected
+    assert classifier_precision(config, {"precision": "32-true"}) == "32-true"
+    fg, labels = blobs(1, seed=0, size=16)
+    seen = Seen()
+    kwargs = {**FAST, "callbacks": [seen], "enable_checkpointing": False}
+    train_classifier(fg, labels, config, tmp_path, [], kwargs, num_classes=N_CLASSES)
+    assert seen.precision == [expected]

@@ -18,11 +18,17 @@ import torch
 from pydantic import Field
 
 from tactile_bench.classify.module import BrailleClassifier
-from tactile_bench.classify.train import ClassifierConfig, evaluate, train_classifier
+from tactile_bench.classify.train import (
+    ClassifierConfig,
+    classifier_precision,
+    evaluate,
+    train_classifier,
+)
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.datamodule import stratified_split, stratified_subset
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.hardware import Precision
 from tactile_bench.io import atomic_torch_save, atomic_write_json, load_npz
 from tactile_bench.pipeline.loggers import make_loggers
 from tactile_bench.pipeline.stages.base import (
@@ -43,7 +49,7 @@ class ClassifierSettings(StageConfig):
     lr: float = Field(default=1e-3, gt=0)
     batch_size: int = Field(default=20, ge=1)
     epochs: int = Field(default=4, ge=1)
-    precision: Literal["32-true", "bf16-mixed"] = "32-true"
+    precision: Precision = "auto"  # auto: bf16 only where the CPU has it (hardware.py)
 
 
 class ClassifyConfig(StageConfig):
@@ -227,6 +233,13 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         "heldout_accuracy": (
             _summary([s["heldout"]["accuracy"] for s in per_seed])
             if per_seed[0]["heldout"]
+            else None
+        ),
+        # the precision its training ran in (None: it only reuses the init stage's models);
+        # not "precision", which is the classification score above
+        "compute_precision": (
+            classifier_precision(ClassifierConfig(**config.classifier.model_dump()), ctx.trainer)
+            if ctx.optional_input("init") is None or pool is not None
             else None
         ),
     }
