@@ -237,6 +237,8 @@ def test_diagnose_stage(tmp_path: Path, backend: list[str] | None) -> None:
         "Z",
     ]
     assert metrics["n_pairs"] == 12
+    assert metrics["compute_precision"] is None  # downstream=False: no classifiers trained
+    assert kind.precision_dependent  # with downstream classifiers its result depends on it
 
 
 def test_summary_lines_tolerate_any_how_far_fields() -> None:

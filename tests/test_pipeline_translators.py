@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from tactile_bench.cli import main
+from tactile_bench.hardware import resolve_precision
 
 RECIPE = """
 name: chain
@@ -60,14 +61,18 @@ def test_pretrain_finetune_translate_classify(tmp_path: Path) -> None:
     assert finetune["initialised_from"] == "pretrain"
     assert finetune["fit_pairs"] == 10  # half of 20, stratified over two characters
     assert 0.0 < finetune["heldout"]["ssim"] <= 1.0
+    auto = resolve_precision("auto")  # translator precision defaults to auto
+    assert pretrain["compute_precision"] == finetune["compute_precision"] == auto
 
     translated = json.loads((dirs["translated"] / "metrics.json").read_text())
     assert translated["translator"] == "colour_match"
     assert translated["test_similarity"]["mse"] >= 0.0
+    assert translated["compute_precision"] == "32-true"  # colour_match translates in fp32
     (row,) = json.loads((run_dir / "results.json").read_text())["rows"]
     assert row["row"] == "diffusion"
     summary = json.loads((dirs["classify"] / "metrics.json").read_text())["summary"]
     assert summary["finetune_fraction"] == 0.5
+    assert summary["compute_precision"] == auto
     assert (dirs["classify"] / "seed0" / "finetune" / "checkpoints" / "last.ckpt").exists()
 
 

@@ -4,12 +4,19 @@ what made it (seeds, versions, platform, the hash of every input)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
+import torch
 
+from tactile_bench import hardware
 from tactile_bench.cli import main
+from tactile_bench.hardware import machine_compute
 from tactile_bench.io import file_sha256
+from tactile_bench.pipeline.recipe import load_recipe
+from tactile_bench.pipeline.runner import stage_key
+from tactile_bench.pipeline.stages.report import machine_line
 from tactile_bench.sensor.surrogate import PROFILE_DIR
 
 RECIPE = """
@@ -80,6 +87,24 @@ def test_same_recipe_same_seed_same_table(recipe: Path, tmp_path: Path) -> None:
     ):
         assert one["versions"][package], package
     assert one["machine"]["platform"] and one["machine"]["torch_threads"] >= 1
+    # what precision: auto gives on this machine, and what each stage ran in
+    compute = machine_compute()
+    assert {k: one["machine"][k] for k in compute} == compute
+    assert one["machine"]["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    stages = {s["name"]: s for s in one["stages"]}
+    assert stages["braille"]["compute_precision"] is None  # no networks
+    assert stages["translate_sim"]["compute_precision"] == "32-true"  # sim: no autocast
+    assert stages["classify_sim"]["compute_precision"] == compute["auto_precision"]
+    report = (tmp_path / "one" / "report.md").read_text()
+    assert machine_line(compute) in report
+    assert "| stage | kind | wall time (s) | cached in this run | precision |" in report
+    row = rf"\| classify_sim \| classify \| [\d.]+ \| (yes|no) \| {compute['auto_precision']} \|"
+    assert re.search(row, report)
+    assert re.search(r"\| braille \| braille_data \| [\d.]+ \| (yes|no) \| — \|", report)
+    table = json.loads((tmp_path / "one" / "table.json").read_text())
+    assert table["machine"] == compute
+    by_name = {s["name"]: s for s in table["stages"]}
+    assert by_name["classify_sim"]["compute_precision"] == compute["auto_precision"]
     assert one["recipe_sha256"] == file_sha256(recipe)
     profile = str((tmp_path / "unit.yaml").resolve())
     assert one["inputs"][profile]["sha256"] == file_sha256(tmp_path / "unit.yaml")
@@ -114,3 +139,21 @@ def test_a_relative_profile_path_is_read_beside_the_recipe(
     monkeypatch.chdir(elsewhere)  # the profile is not in the working directory
     run = _fit(recipe, tmp_path / "run")
     assert run["stages"][0]["config"]["real_sensor"] == "unit.yaml"
+
+
+def test_network_stages_are_keyed_by_what_auto_resolves_to(
+    recipe: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Another machine where auto means bf16 must not reuse this one's fp32 classifiers,
+    while data stages stay shared across machines."""
+    loaded = load_recipe(recipe)
+    keys = {}
+    for native in (False, True):
+        monkeypatch.setattr(hardware, "native_bf16", lambda device="cpu", n=native: n)
+        keys[native] = {stage.name: stage_key(loaded, stage, {}) for stage in loaded.stages}
+    assert keys[False]["braille"] == keys[True]["braille"]
+    assert keys[False]["report"] == keys[True]["report"]
+    assert keys[False]["classify_sim"] != keys[True]["classify_sim"]
+    assert keys[False]["translate_sim"] != keys[True]["translate_sim"]
+    kinds = {stage.name: stage.kind for stage in loaded.stages}
+    assert not kinds["braille"].precision_dependent and kinds["classify_sim"].precision_dependent

@@ -25,9 +25,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import torch
-
 import tactile_bench
+from tactile_bench.hardware import machine_compute
 from tactile_bench.io import atomic_write_json, file_sha256
 
 log = logging.getLogger("tactile_bench")
@@ -63,14 +62,16 @@ def versions() -> dict[str, str | None]:
 
 
 def machine() -> dict[str, Any]:
-    """Where the run happened: floating-point results can differ across CPUs and threads."""
+    """Where the run happened: floating-point results can differ across CPUs and threads,
+    and ``precision: auto`` picks bf16 or fp32 by the CPU (``cpu_capability``,
+    ``native_bf16``, ``auto_precision``: see ``hardware``)."""
     return {
         "platform": platform.platform(),
         "machine": platform.machine(),
         "processor": platform.processor() or None,
         "cpu_count": os.cpu_count(),
-        "torch_threads": torch.get_num_threads(),
         "executable": sys.executable,
+        **machine_compute(),  # cpu_capability, native_bf16, torch_threads, auto_precision
     }
 
 
@@ -197,6 +198,7 @@ def run_record(recipe: Any, results: list[Any], hasher: InputHasher) -> dict[str
                 "wall_time_s": result.wall_time_s,
                 "cached": result.cached,
                 "resumed_from_step": result.metrics.get("resumed_from_step"),
+                "compute_precision": result.metrics.get("compute_precision"),
             }
         )
     recipe_path = Path(recipe.path)

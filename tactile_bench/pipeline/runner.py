@@ -19,6 +19,7 @@ from typing import Any
 
 import tactile_bench
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.hardware import resolve_precision, trainer_device
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
 from tactile_bench.pipeline.provenance import InputHasher, run_record
 from tactile_bench.pipeline.recipe import Recipe, Stage
@@ -38,7 +39,8 @@ def stage_key(
     """Short hash of everything that determines a stage's outputs: its config, the content of
     the stages and user files it reads (``files``: path -> sha256), seed, trainer, version.
     Trainer settings that only change display or checkpoint frequency are left out, so
-    changing them does not lose a killed stage's checkpoint."""
+    changing them does not lose a killed stage's checkpoint. A stage whose networks' precision
+    can come from ``auto`` also hashes what ``auto`` resolves to on this machine."""
     doc: dict[str, Any] = {
         "kind": stage.kind.name,
         "config": stage.config.model_dump(mode="json"),
@@ -47,6 +49,9 @@ def stage_key(
         "trainer": result_settings(recipe.trainer),
         "version": tactile_bench.__version__,
     }
+    if stage.kind.precision_dependent:
+        device = trainer_device(recipe.trainer.get("accelerator"))
+        doc["auto_precision"] = resolve_precision("auto", device)
     if files:
         doc["files"] = files
     return json_sha256(doc)[:12]

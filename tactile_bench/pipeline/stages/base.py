@@ -101,6 +101,11 @@ class StageKind:
     ``publish`` names outputs copied to the run directory's root (results, reports).
     ``check`` validates a config against the world (files, registries) before any
     work starts and raises TactileBenchError("key: problem").
+    ``precision_dependent``: its results depend on the precision its networks train or
+    sample in, which ``precision: auto`` picks per machine; its cache key then includes what
+    ``auto`` resolves to here, so another machine does not silently reuse it. Stages that run
+    networks only in fixed fp32 leave it False (their inputs' hashes already rerun them when
+    an upstream stage's outputs change), and so do data stages, cached across machines.
     """
 
     name: str
@@ -111,3 +116,4 @@ class StageKind:
     check: Callable[[Any, Path], None] = _no_check
     exactly_one_of: tuple[str, ...] = ()
     publish: tuple[str, ...] = ()
+    precision_dependent: bool = False

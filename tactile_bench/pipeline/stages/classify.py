@@ -260,3 +260,4 @@ STAGE = StageKind(
     run=_run,
     input_slots={"data": True, "images": False, "init": False},
 )
+    precision_dependent=True,

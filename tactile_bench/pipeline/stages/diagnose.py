@@ -11,6 +11,7 @@ from typing import Any
 
 from pydantic import Field
 
+from tactile_bench.classify.train import ClassifierConfig, classifier_precision
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
@@ -64,6 +65,10 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         "top_effect": top["effect"] if top else None,
         "top_shrink": top["shrink"] if top else None,
         "unexplained": report["unexplained"],
+        # the precision its downstream classifiers (default config) trained in; None: none
+        "compute_precision": (
+            classifier_precision(ClassifierConfig()) if config.downstream else None
+        ),
     }
     return {"report_json": "report.json", "report_html": "report.html"}, metrics
 
@@ -75,4 +80,5 @@ STAGE = StageKind(
     run=_run,
     input_slots={"data": True},
     check=_check,
+    precision_dependent=True,
 )

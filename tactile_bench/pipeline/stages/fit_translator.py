@@ -127,6 +127,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         "fit_pairs": len(depth),
         "initialised_from": init_from,
         "divergence": translator.fit_diagnostics().get("divergence"),
+        # the precision the fit trained in (None: nothing was trained)
+        "compute_precision": translator.training_precision(ctx.trainer) if report else None,
     }
     n = min(config.eval_pairs, len(test_depth))
     if n:
@@ -151,4 +153,5 @@ STAGE = StageKind(
     input_slots={"braille": False, "corpus": False, "init": False},
     exactly_one_of=("braille", "corpus"),
     check=_check,
+    precision_dependent=True,
 )

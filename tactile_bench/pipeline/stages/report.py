@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.hardware import machine_compute
 from tactile_bench.io import atomic_write_json, atomic_write_text
 from tactile_bench.pipeline.provenance import machine, versions
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind, StageResult
@@ -79,8 +80,27 @@ def _per_class_figure(rows: list[dict[str, Any]], path: Path) -> Path:
 
 
 def _timing(previous: list[StageResult]) -> tuple[list[list[str]], float]:
-    rows = [[r.name, r.kind, f"{r.wall_time_s:.1f}", "yes" if r.cached else "no"] for r in previous]
+    rows = [
+        [r.name, r.kind, f"{r.wall_time_s:.1f}", "yes" if r.cached else "no", _precision(r)]
+        for r in previous
+    ]
     return rows, float(sum(r.wall_time_s for r in previous))
+
+
+def _precision(result: StageResult) -> str:
+    """The precision a stage's networks trained or sampled in; "—" for stages without."""
+    value = result.metrics.get("compute_precision")
+    return "—" if value is None else str(value)
+
+
+def machine_line(info: dict[str, Any]) -> str:
+    """One line on what the timings and the precision depend on (``hardware.machine_compute``)."""
+    native = "yes" if info["native_bf16"] else "no"
+    threads = info["torch_threads"]
+    return (
+        f"Machine: CPU capability {info['cpu_capability']}, native bf16 {native}, {threads} "
+        f"thread{'s' * (threads != 1)}; precision: auto -> {info['auto_precision']}"
+    )
 
 
 def _document(
@@ -138,10 +158,15 @@ def _document(
             doc.figure(path, f"{row_id.split(':', 1)[1]}: confusion on the real test set")
     doc.heading("Where the time went")
     timing, total = _timing(ctx.previous)
-    doc.table(["stage", "kind", "wall time (s)", "cached in this run"], timing)
+    doc.paragraph(
+        machine_line(machine_compute()) + " (bf16 autocast only where the CPU has bf16 "
+        "arithmetic, AVX-512-BF16 or AMX; elsewhere it is emulated and many times slower)."
+    )
+    doc.table(["stage", "kind", "wall time (s)", "cached in this run", "precision"], timing)
     doc.paragraph(
         f"Sum of stage wall times: {total:.0f} s ({total / 60:.1f} min); a cached stage shows "
-        "the time it took when it ran."
+        "the time it took when it ran. The precision column is the one each stage's networks "
+        "trained or sampled in (— for stages without)."
     )
     doc.heading("Reproducibility")
     doc.bullets([f"{k}: {v}" for k, v in _versions().items()] + [f"recipe seed: {ctx.seed}"])
@@ -188,10 +213,17 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             "similarity": list(by_translator.values()),
             "checks": checks,
             "stages": [
-                {"name": t[0], "kind": t[1], "wall_time_s": float(t[2]), "cached": t[3] == "yes"}
-                for t in timing
+                {
+                    "name": r.name,
+                    "kind": r.kind,
+                    "wall_time_s": float(t[2]),
+                    "cached": r.cached,
+                    "compute_precision": r.metrics.get("compute_precision"),
+                }
+                for r, t in zip(ctx.previous, timing, strict=True)
             ],
             "total_stage_time_s": total,
+            "machine": machine_compute(),
             "versions": _versions(),
             "seed": ctx.seed,
         },

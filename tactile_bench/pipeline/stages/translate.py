@@ -67,7 +67,10 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     translator = _translator(ctx)
     generator = torch.Generator().manual_seed(ctx.seed)
     outputs: dict[str, str] = {}
-    metrics: dict[str, Any] = {"translator": translator.name}
+    metrics: dict[str, Any] = {
+        "translator": translator.name,
+        "compute_precision": translator.inference_precision(),
+    }
     for name in config.sets:
         split = BrailleSet.load(data.path(name))
         background = (
@@ -106,4 +109,5 @@ STAGE = StageKind(
     run=_run,
     input_slots={"data": True, "translator": False},
     check=_check,
+    precision_dependent=True,
 )
