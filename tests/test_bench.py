@@ -12,6 +12,7 @@ import pytest
 from tactile_bench.bench import BenchConfig, run_bench
 from tactile_bench.bench.timing import measure, peak_memory
 from tactile_bench.cli import main
+from tactile_bench.hardware import native_bf16, resolve_precision
 
 # a 50-step schedule keeps the full-chain DDPM baseline (500 steps in a real run) short
 TINY_DIFFUSION = {"preset": "tiny", "batch_size": 4, "sample_batch_size": 4, "train_timesteps": 50}
@@ -59,6 +60,43 @@ def test_writes_json_and_markdown_with_the_sampling_schema(result: tuple[dict, P
     assert "fitted by the bench" in on_disk["sampling_details"]["model"]["source"]
     md = (out / "bench.md").read_text()
     assert "DDPM-50" in md and "| sampler |" in md
+    # which precision auto picks on this CPU, and that the default sampler ran in it
+    machine = on_disk["machine"]
+    auto = resolve_precision("auto")
+    assert machine["native_bf16"] == native_bf16() and machine["auto_precision"] == auto
+    assert f"`precision: auto` (the default of every config) runs {auto} here" in md
+    default = on_disk["sampling_details"]["default"]
+    assert default["precision"] == "auto" and default["compute_precision"] == auto
+    assert f"precision auto -> {auto} on {machine['cpu_capability']}" in md
+    variants = {v["variant"]: v for v in on_disk["sampling_details"]["inference_variants"]}
+    assert variants["as configured"]["compute_precision"] == auto
+    assert variants["fp32"]["compute_precision"] == "32-true"
+    presets = on_disk["sampling_details"]["presets"]
+    assert {p["compute_precision"] for p in presets.values()} == {auto}
+
+
+def _training_result(auto: str, capability: str) -> dict:
+    row = {"images_per_s": 10.0, "speedup_vs_fp32": 1.0, "peak_mib": 5.0}
+    slow = {"images_per_s": 0.1, "speedup_vs_fp32": 0.01, "peak_mib": 5.0}
+    rows = {"fp32": row, "bf16": slow, "fp32+channels_last": row, "bf16+channels_last": slow}
+    machine = {"cpu_capability": capability, "native_bf16": auto != "32-true"}
+    return {"training": {"classifier": rows}, "machine": machine | {"auto_precision": auto}}
+
+
+def test_training_table_names_the_cpu_its_bf16_figures_hold_for() -> None:
+    from tactile_bench.bench.report import _training
+
+    md = "\n".join(_training(_training_result("32-true", "AVX2")))
+    header = next(line for line in md.splitlines() if line.startswith("| model"))
+    assert "| fp32 (auto) | bf16 on AVX2 |" in header
+    assert "| fp32+channels_last (auto) | bf16+channels_last on AVX2 |" in header
+    assert "0.1 (0.01x)" in md
+    assert "All figures measured on AVX2" in md and "trains in 32-true" in md
+    md = "\n".join(_training(_training_result("bf16-mixed", "AVX512")))
+    assert "| fp32 | bf16 on AVX512 (auto) |" in md
+    old = _training_result("32-true", "AVX2")  # a bench.json from before precision: auto
+    del old["machine"]["auto_precision"]
+    assert "(auto)" not in "\n".join(_training(old))
 
 
 @pytest.mark.slow

@@ -22,6 +22,29 @@ def _f(x: float | None, digits: int = 2) -> str:
     return f"{x:.{digits}f}"
 
 
+def _precision(row: dict[str, Any]) -> str:
+    """``auto -> 32-true`` for a row that asked auto, else what it ran in (older bench.json
+    files carry ``bf16: true/false`` instead)."""
+    compute = row.get("compute_precision")
+    if compute is None:
+        return "bf16-mixed" if row.get("bf16") else "32-true"
+    asked = row.get("precision", compute)
+    return f"{asked} -> {compute}" if asked != compute else str(compute)
+
+
+def _bf16_line(m: dict[str, Any]) -> str:
+    """Whether this CPU has bf16 arithmetic, and what ``precision: auto`` therefore picks."""
+    if "native_bf16" not in m:
+        return "- bf16: not recorded (a bench.json from before `precision: auto`)"
+    native = "yes" if m["native_bf16"] else "no (emulated, many times slower than fp32)"
+    return (
+        f"- bf16 arithmetic on this CPU ({m['cpu_capability']}): {native}; `precision: auto` "
+        f"(the default of every config) runs {m['auto_precision']} here. Every bf16 figure "
+        f"below holds for {m['cpu_capability']} only: AVX-512-BF16 and AMX CPUs run bf16 "
+        "1.3-1.9x faster than fp32."
+    )
+
+
 def _machine(r: dict[str, Any]) -> list[str]:
     m = r["machine"]
     quick = r["config"]["quick"]
@@ -36,6 +59,7 @@ def _machine(r: dict[str, Any]) -> list[str]:
         f"thread(s), diffusers {m['diffusers']}, lightning {m['lightning']}, "
         f"Python {m['python']}; LD_PRELOAD: `{m['ld_preload'] or 'none'}`; malloc: "
         f"{m.get('malloc', 'default')}",
+        _bf16_line(m),
         f"- load average (1, 5, 15 min) at start {r['loadavg_start']}, at end "
         f"{r['loadavg_end']}: above the core count means other processes shared the CPU "
         "and absolute figures are low; the ratios were measured side by side.",
@@ -104,9 +128,9 @@ def _sampling(r: dict[str, Any]) -> list[str]:
     )
     met = "met" if check["all_met"] else "NOT met"
     lines += [
-        f"**Default** ({default['sampler']}, {default['steps']} steps, bf16 autocast "
-        f"{default['bf16']}, channels_last {default['channels_last']}, chunks of "
-        f"{default['sample_batch_size']}): targets {met}.",
+        f"**Default** ({default['sampler']}, {default['steps']} steps, precision "
+        f"{_precision(default)} on {r['machine']['cpu_capability']}, channels_last "
+        f"{default['channels_last']}, chunks of {default['sample_batch_size']}): targets {met}.",
         "",
         f"- {_f(check['speedup_vs_ddpm500']['value'], 1)}x the images/s of {ddpm} "
         f"(target >= {check['speedup_vs_ddpm500']['target']:.0f}x); {ddpm} ran at "
@@ -125,11 +149,11 @@ def _sampling(r: dict[str, Any]) -> list[str]:
         "### Where the default's speed comes from (same sampler, same contacts)",
         "",
         *_table(
-            ["setting", "bf16", "channels_last", "batch", "img/s", "img/CPU-s", "x default"],
+            ["setting", "precision", "channels_last", "batch", "img/s", "img/CPU-s", "x default"],
             [
                 [
                     v["variant"],
-                    v["bf16"],
+                    _precision(v),
                     v["channels_last"],
                     v["batch"],
                     _f(v["images_per_s"], 2),
@@ -140,6 +164,8 @@ def _sampling(r: dict[str, Any]) -> list[str]:
             ],
         ),
         "### Network presets (random weights: speed only)",
+        "",
+        f"Precision: {_presets_precision(d['presets'])} on {r['machine']['cpu_capability']}.",
         "",
         *_table(
             ["preset", "parameters", "net evals/s", "DDPM-500 img/s", f"{steps}-step img/s"],
@@ -159,6 +185,12 @@ def _sampling(r: dict[str, Any]) -> list[str]:
         "",
     ]
     return lines
+
+
+def _presets_precision(presets: dict[str, Any]) -> str:
+    """What the preset rows ran in (older bench.json files: bf16, then the only choice)."""
+    found = {p.get("compute_precision", "bf16-mixed") for p in presets.values()}
+    return ", ".join(sorted(found)) or "-"
 
 
 def _why_default(rows: list[dict[str, Any]], default: dict[str, Any], ddpm: str) -> list[str]:
@@ -274,6 +306,9 @@ def _simulation(r: dict[str, Any]) -> list[str]:
 
 def _training(r: dict[str, Any]) -> list[str]:
     t = r["training"]
+    m = r["machine"]
+    cap = m["cpu_capability"]
+    auto = m.get("auto_precision")
     order = ("fp32", "bf16", "fp32+channels_last", "bf16+channels_last")
     seen = list(next(iter(t.values())))
     variants = [v for v in order if v in seen] + [v for v in seen if v not in order]
@@ -284,11 +319,28 @@ def _training(r: dict[str, Any]) -> list[str]:
             cells.append(f"{_f(row[v]['images_per_s'], 1)} ({_f(row[v]['speedup_vs_fp32'], 2)}x)")
         cells.append(_f(max(row[v]["peak_mib"] for v in variants), 0))
         rows.append(cells)
+
+    def label(variant: str) -> str:
+        """bf16 columns name the CPU capability they hold for; auto's precision is marked."""
+        bf16 = variant.startswith("bf16")
+        text = f"{variant} on {cap}" if bf16 else variant
+        if auto is not None and bf16 == (auto == "bf16-mixed"):
+            text += " (auto)"
+        return text
+
+    picks = (
+        f"`precision: auto` trains in {auto} on this {cap} CPU, so the columns marked (auto) "
+        "are what recipes get. "
+        if auto is not None
+        else ""
+    )
     return [
         "## Training throughput (images/s of optimiser steps; x fp32 in brackets)",
         "",
-        *_table(["model", *variants, "peak MiB"], rows),
-        "bf16 = `precision='bf16-mixed'` (autocast); channels_last = weights converted "
+        *_table(["model", *[label(v) for v in variants], "peak MiB"], rows),
+        f"All figures measured on {cap}. {picks}bf16 = `precision='bf16-mixed'` (autocast): "
+        "its x fp32 holds for this CPU capability only (without AVX-512-BF16 or AMX bf16 is "
+        "emulated: far below 1x; with them 1.3-1.9x). channels_last = weights converted "
         "once, activations follow. Medians over the timed steps after warm-up steps.",
         "",
     ]
@@ -299,7 +351,9 @@ def _scaling(r: dict[str, Any]) -> list[str]:
     lines = [
         "## Cost against work (1x, 2x, 4x)",
         "",
-        "`linearity` = time at k x the work / (k x time at 1x): 1.00 is linear.",
+        "`linearity` = time at k x the work / (k x time at 1x): 1.00 is linear. Epochs "
+        "train through the recipes' entry points with their defaults, so in `precision: "
+        f"auto` ({r['machine'].get('auto_precision', 'not recorded')} here).",
         "",
     ]
     rows, notes = [], []

@@ -31,12 +31,13 @@ from tactile_bench.bench.threads import thread_settings
 from tactile_bench.bench.timing import torch_threads
 from tactile_bench.data.braille import BrailleSet, build_braille_sets
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.hardware import native_bf16, resolve_precision
 from tactile_bench.io import atomic_write_json, atomic_write_text
 from tactile_bench.translators.diffusion import DiffusionConfig, DiffusionTranslator
 
 SECTIONS = ("simulation", "sampling", "threads", "training", "scaling")
 # inference settings the bench applies to a loaded checkpoint: the shipped defaults
-INFERENCE_KEYS = ("sampler", "steps", "sample_batch_size", "bf16", "channels_last")
+INFERENCE_KEYS = ("sampler", "steps", "sample_batch_size", "precision", "channels_last")
 # what the default sampler must reach (issue 8): vs DDPM-500 measured in the same run
 TARGET_SPEEDUP, TARGET_SSIM_DROP, TARGET_IMAGES_PER_S = 25.0, 0.01, 10.0
 
@@ -118,6 +119,8 @@ def machine_info() -> dict[str, Any]:
         "torch_threads": torch.get_num_threads(),
         "cpu": cpu,
         "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "native_bf16": native_bf16(),
+        "auto_precision": resolve_precision("auto"),
         "torch": torch.__version__,
         "diffusers": diffusers.__version__,
         "lightning": lightning.__version__,
@@ -289,14 +292,19 @@ def run_bench(
             presets = step(
                 "network presets",
                 lambda: sampling.preset_speed(
-                    cfg.presets, cfg.preset_batch, model.config.image_size, cfg.repeats
+                    cfg.presets,
+                    cfg.preset_batch,
+                    model.config.image_size,
+                    cfg.repeats,
+                    model.config.precision,
                 ),
             )
             result["sampling"] = [*table["rows"], table["default_large"]]
             result["sampling_details"] = {
                 **{k: v for k, v in table.items() if k not in ("rows", "default_large")},
                 "model": origin,
-                "default": {k: getattr(model.config, k) for k in INFERENCE_KEYS},
+                "default": {k: getattr(model.config, k) for k in INFERENCE_KEYS}
+                | {"compute_precision": model.inference_precision()},
                 "default_check": default_check(table),
                 "inference_variants": variants,
                 "presets": presets,

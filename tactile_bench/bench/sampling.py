@@ -25,6 +25,7 @@ import torch.nn.functional as F
 
 from tactile_bench.bench.timing import measure
 from tactile_bench.data.braille import BrailleSet
+from tactile_bench.hardware import resolve_precision
 from tactile_bench.metrics.image import ssim_mse
 from tactile_bench.translators.diffusion import PRESETS, DiffusionTranslator, build_unet
 from tactile_bench.translators.diffusion.torch_model import conditional_output
@@ -154,19 +155,23 @@ def sampling_table(
         "baseline": {"sampler": baseline_case.sampler, "steps": baseline_case.steps},
         "test_images": len(subset),
         "sample_batch_size": translator.config.sample_batch_size,
-        "bf16": translator.config.bf16,
+        "precision": translator.config.precision,
+        "compute_precision": translator.inference_precision(),
         "channels_last": getattr(translator.config, "channels_last", False),
     }
 
 
 def preset_speed(
-    presets: Sequence[str], batch: int, image_size: int, repeats: int, bf16: bool = True
+    presets: Sequence[str], batch: int, image_size: int, repeats: int, precision: str = "auto"
 ) -> dict[str, Any]:
     """Network evaluations per second of each UNet preset (random weights: speed only).
 
     One evaluation is one denoising step for one image, so DDPM-500 images/s is this
-    divided by 500 and an N-step solver's is this divided by N.
+    divided by 500 and an N-step solver's is this divided by N. ``precision`` as in a
+    config: ``auto`` measures what sampling uses on this machine.
     """
+    compute = resolve_precision(precision)
+    bf16 = compute == "bf16-mixed"
     layout = torch.channels_last
     x = torch.randn(batch, 3, image_size, image_size).contiguous(memory_format=layout)
     c = torch.rand(batch, 1, image_size, image_size).contiguous(memory_format=layout)
@@ -185,6 +190,7 @@ def preset_speed(
         params = sum(p.numel() for p in unet.parameters())
         out[name] = {
             "params": params,
+            "compute_precision": compute,
             "evals_per_s": timing.per_s,
             "ddpm500_images_per_s": timing.per_s / 500,
             "timing": timing.to_dict(),
@@ -195,9 +201,9 @@ def preset_speed(
 # name -> settings on top of the translator's own; the first row is the shipped default
 INFERENCE_VARIANTS: dict[str, dict[str, Any]] = {
     "as configured": {},
-    "fp32": {"bf16": False},
+    "fp32": {"precision": "32-true"},
     "NCHW (no channels_last)": {"channels_last": False},
-    "fp32, NCHW": {"bf16": False, "channels_last": False},
+    "fp32, NCHW": {"precision": "32-true", "channels_last": False},
     "batch 128": {"sample_batch_size": 128},
 }
 
@@ -219,7 +225,11 @@ def inference_variants(
             model.inference_unet.to(memory_format=torch.contiguous_format)
         row = run_case(model, data, case, repeats, seed)
         cfg = model.config
-        layout = {"bf16": cfg.bf16, "channels_last": cfg.channels_last}
+        layout = {
+            "precision": cfg.precision,
+            "compute_precision": model.inference_precision(),
+            "channels_last": cfg.channels_last,
+        }
         rows.append({"variant": name, **layout, "batch": cfg.sample_batch_size, **row})
     if translator.config.channels_last:
         translator.inference_unet.to(memory_format=torch.channels_last)
