@@ -259,5 +259,5 @@ STAGE = StageKind(
     config_model=ClassifyConfig,
     run=_run,
     input_slots={"data": True, "images": False, "init": False},
-)
     precision_dependent=True,
+)
