@@ -69,7 +69,7 @@ class DiffusionConfig(TranslatorConfig):
 
     max_steps: int = Field(default=1000, ge=0)
     lr: float = Field(default=1e-4, gt=0)
-    preset: Literal[tuple(PRESETS)] = "cpu"  # type: ignore[valid-type]
+    preset: Literal[tuple(PRESETS)] = "cpu-small"  # type: ignore[valid-type]
     image_size: int = Field(default=64, ge=8)
     train_timesteps: int = Field(default=500, ge=2)
     beta_start: float = 1e-4
