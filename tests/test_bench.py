@@ -71,6 +71,14 @@ def test_writes_json_and_markdown_with_the_sampling_schema(result: tuple[dict, P
     variants = {v["variant"]: v for v in on_disk["sampling_details"]["inference_variants"]}
     assert variants["as configured"]["compute_precision"] == auto
     assert variants["fp32"]["compute_precision"] == "32-true"
+    assert variants["bf16"]["compute_precision"] == "bf16-mixed"  # both precisions measured
+    assert variants["bf16"]["images_per_s"] > 0
+    # the one-conv probe: both precisions timed, the ratio is of the two medians, and bench.md
+    # prints them
+    probe = machine["conv_probe"]
+    assert probe["fp32_ms"] > 0 and probe["bf16_ms"] > 0
+    assert probe["bf16_over_fp32"] == pytest.approx(probe["bf16_ms"] / probe["fp32_ms"])
+    assert f"fp32 {probe['fp32_ms']:.0f} ms, bf16 autocast {probe['bf16_ms']:.0f} ms" in md
     presets = on_disk["sampling_details"]["presets"]
     assert {p["compute_precision"] for p in presets.values()} == {auto}
 
@@ -112,6 +120,9 @@ def test_full_tiny_run_covers_every_section(tmp_path: Path) -> None:
     for rows in r["training"].values():
         assert rows["fp32"]["speedup_vs_fp32"] == pytest.approx(1.0)
         bf16 = rows["bf16"]
+        # emulated bf16 (AVX2) is timed over a couple of steps only, native over all of them
+        assert bf16["emulated_bf16"] is (not native_bf16())
+        assert rows["fp32"]["emulated_bf16"] is False
         assert bf16["speedup_vs_fp32"] == pytest.approx(
             bf16["images_per_s"] / rows["fp32"]["images_per_s"]
         )

@@ -45,6 +45,18 @@ def _bf16_line(m: dict[str, Any]) -> str:
     )
 
 
+def _conv_line(m: dict[str, Any]) -> list[str]:
+    """The one-convolution answer to "is bf16 worth it here" (absent in older bench.json)."""
+    probe = m.get("conv_probe")
+    if not probe:
+        return []
+    return [
+        f"- one 3x3 conv ({probe['shape']}, {probe['threads']} threads): fp32 "
+        f"{probe['fp32_ms']:.0f} ms, bf16 autocast {probe['bf16_ms']:.0f} ms "
+        f"({probe['bf16_over_fp32']:.2f}x the fp32 time)"
+    ]
+
+
 def _machine(r: dict[str, Any]) -> list[str]:
     m = r["machine"]
     quick = r["config"]["quick"]
@@ -60,6 +72,7 @@ def _machine(r: dict[str, Any]) -> list[str]:
         f"Python {m['python']}; LD_PRELOAD: `{m['ld_preload'] or 'none'}`; malloc: "
         f"{m.get('malloc', 'default')}",
         _bf16_line(m),
+        *_conv_line(m),
         f"- load average (1, 5, 15 min) at start {r['loadavg_start']}, at end "
         f"{r['loadavg_end']}: above the core count means other processes shared the CPU "
         "and absolute figures are low; the ratios were measured side by side.",

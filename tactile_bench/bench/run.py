@@ -13,6 +13,7 @@ import dataclasses
 import logging
 import os
 import platform
+import statistics
 import sys
 import tempfile
 import time
@@ -62,6 +63,7 @@ class BenchConfig:
     )
     presets: tuple[str, ...] = ("cpu", "paper")
     preset_batch: int = 32
+    conv_batch: int = 16
     train_warmup: int = 3
     train_steps: int = 10
     epoch_sizes: dict[str, tuple[int, ...]] = field(
@@ -91,6 +93,7 @@ class BenchConfig:
             cases=tuple((s, k) for s in ("ddim", "dpmsolver++", "unipc") for k in (1, 2, 4)),
             presets=("cpu",),
             preset_batch=8,
+            conv_batch=2,
             train_warmup=1,
             train_steps=3,
             epoch_sizes={"translator": (32, 64, 128), "classifier": (120, 240, 480)},
@@ -129,6 +132,28 @@ def machine_info() -> dict[str, Any]:
         "ld_preload": os.environ.get("LD_PRELOAD", ""),
         "malloc": allocator.describe(),
     }
+
+
+def conv_probe(batch: int = 16, repeats: int = 3) -> dict[str, Any]:
+    """One 3 x 3 convolution (64 -> 64 channels on batch x 64 x 64 x 64) in fp32 and under
+    bf16 autocast, at the process's thread count: the cost of bf16 on this CPU in one number."""
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn(batch, 64, 64, 64, generator=gen)
+    conv = torch.nn.Conv2d(64, 64, 3, padding=1)
+    out: dict[str, Any] = {
+        "shape": f"{batch}x64x64x64, 64->64, 3x3",
+        "threads": torch.get_num_threads(),
+    }
+    for name, bf16 in (("fp32", False), ("bf16", True)):
+        times = []
+        with torch.no_grad(), torch.autocast("cpu", torch.bfloat16, enabled=bf16):
+            for _ in range(repeats + 1):  # the first call is oneDNN's kernel choice
+                start = time.perf_counter()
+                conv(x)
+                times.append(time.perf_counter() - start)
+        out[f"{name}_ms"] = 1000 * statistics.median(times[1:])
+    out["bf16_over_fp32"] = out["bf16_ms"] / out["fp32_ms"]
+    return out
 
 
 def _loadavg() -> list[float] | None:
@@ -249,6 +274,9 @@ def run_bench(
             result.setdefault("section_wall_s", {})[name] = round(time.perf_counter() - t0, 2)
             return value
 
+        result["machine"]["conv_probe"] = step(
+            "precision: conv fp32 vs bf16", lambda: conv_probe(cfg.conv_batch, cfg.repeats)
+        )
         if "simulation" in sections:
             braille_sim = step(
                 "simulation: braille", lambda: simulation.braille(cfg.sim_contacts, cfg.repeats)

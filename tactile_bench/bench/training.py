@@ -6,8 +6,10 @@ the same), each with NCHW or channels_last weights (the module is converted once
 convolutions then keep activations channels_last). Both precisions are measured whatever
 ``precision: auto`` picks here, so the table shows what bf16 costs or gains on this CPU.
 A callback times each optimiser step (forward, backward, update); the first steps are
-warm-up and not counted, the rest give a median. Data are real braille foregrounds of the
-simulated fine-tuning set.
+warm-up and not counted, the rest give a median (a bf16 variant on a CPU that emulates
+bf16 times ``EMULATED_BF16_STEPS`` steps after one warm-up: enough for its rate, and the
+full count would take an hour). Data are real braille foregrounds of the simulated
+fine-tuning set.
 
 The cost-versus-work check trains ONE epoch at 1x, 2x and 4x the data through the same
 entry points a recipe uses (``Translator.fit_pairs``, ``classify.train_classifier``) and
@@ -31,7 +33,11 @@ from torch.utils.data import DataLoader, TensorDataset
 from tactile_bench.bench.timing import peak_memory
 from tactile_bench.classify.module import BrailleClassifier
 from tactile_bench.classify.train import ClassifierConfig, train_classifier
+from tactile_bench.hardware import native_bf16
 from tactile_bench.translators import Translator, discover
+
+#: timed steps of a bf16 variant on a CPU that emulates bf16 (20-100x slower than fp32)
+EMULATED_BF16_STEPS = 2
 
 VARIANTS: dict[str, tuple[bool, bool]] = {  # name -> (bf16, channels_last)
     "fp32": (False, False),
@@ -106,6 +112,8 @@ def step_throughput(
     need = (warmup + steps) * batch_size  # a small data set is cycled to fill the steps
     loader_data = TensorDataset(*(_repeat(x, max(need, len(x))) for x in data))
     for variant, (bf16, channels_last) in VARIANTS.items():
+        emulated = bf16 and not native_bf16()
+        warm, timed = (1, EMULATED_BF16_STEPS) if emulated else (warmup, steps)
         module = make(bf16)
         if channels_last:
             module = module.to(memory_format=torch.channels_last)
@@ -122,17 +130,18 @@ def step_throughput(
                 [timer],
                 tmp,
                 max_epochs=1,
-                limit_train_batches=warmup + steps,
+                limit_train_batches=warm + timed,
                 precision="bf16-mixed" if bf16 else "32-true",
             )
             trainer.fit(module, loader)
-        wall = statistics.median(timer.wall[warmup:])
-        cpu = statistics.median(timer.cpu[warmup:])
+        wall = statistics.median(timer.wall[warm:])
+        cpu = statistics.median(timer.cpu[warm:])
         out[variant] = {
+            "emulated_bf16": emulated,
             "images_per_s": batch_size / wall,
             "images_per_cpu_s": batch_size / max(cpu, 1e-9),
             "median_step_s": wall,
-            "steps": len(timer.wall) - warmup,
+            "steps": len(timer.wall) - warm,
             "peak_mib": round(mem.delta_mib, 1),
         }
     base = out["fp32"]["images_per_s"]
