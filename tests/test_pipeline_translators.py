@@ -159,3 +159,54 @@ def test_compare_translators_scores_each_on_the_same_test_set(tmp_path: Path) ->
     assert rows[1]["paper_ssim"] == 0.879
     assert "| cgan |" in (run_dir / "similarity.md").read_text()
     assert (run_dir / "samples.png").read_bytes()[:4] == b"\x89PNG"
+
+
+SEEDS_RECIPE = """
+name: seeds
+stages:
+  - name: braille
+    kind: braille_data
+    config: {chars: AB, n_finetune: 12, n_test: 8, n_classifier: 24, n_classifier_test: 8}
+  - name: classify
+    kind: classify
+    inputs: {data: braille}
+    config:
+      row: real
+      train_images: real
+      seeds: [0, 1]
+      parallel_seeds: PARALLEL
+      finetune_fraction: 0.5
+      finetune_epochs: 1
+      classifier: {width: 4, blocks: [1, 1, 1, 1], epochs: 2}
+"""
+
+
+def test_parallel_seeds_train_the_models_sequential_training_does(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two seeds in two one-thread worker processes (base training and real fine-tuning)
+    give the same weights and scores as the two trained in turn here on one thread."""
+    import torch
+
+    monkeypatch.setenv("TACTILE_BENCH_NO_WANDB", "1")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the workers get 1 // 2 -> 1 thread: same arithmetic
+    try:
+        out = {}
+        for parallel in (1, 2):
+            path = tmp_path / f"seeds{parallel}.yaml"
+            path.write_text(SEEDS_RECIPE.replace("PARALLEL", str(parallel)))
+            run_dir = tmp_path / f"run{parallel}"
+            assert main(["fit", str(path), "--run-dir", str(run_dir), "--no-progress"]) == 0
+            (stage,) = run_dir.glob("classify-*")
+            out[parallel] = stage
+    finally:
+        torch.set_num_threads(threads)
+    for seed in (0, 1):
+        sequential = torch.load(out[1] / f"model_seed{seed}.pt", weights_only=True)
+        parallel = torch.load(out[2] / f"model_seed{seed}.pt", weights_only=True)
+        for name, value in sequential["state_dict"].items():
+            assert torch.equal(value, parallel["state_dict"][name]), (seed, name)
+        assert (out[2] / f"seed{seed}" / "finetune" / "checkpoints" / "last.ckpt").exists()
+    scores = [json.loads((d / "metrics.json").read_text())["per_seed"] for d in out.values()]
+    assert [s["test"]["accuracy"] for s in scores[0]] == [s["test"]["accuracy"] for s in scores[1]]

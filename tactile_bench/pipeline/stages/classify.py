@@ -10,6 +10,11 @@ gap alone, with no pose shift mixed in. A held-out part of the training images i
 
 from __future__ import annotations
 
+import dataclasses
+import logging
+import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Literal
 
@@ -40,6 +45,8 @@ from tactile_bench.pipeline.stages.base import (
 from tactile_bench.report.figures import confusion_png, per_class_bar_png
 from tactile_bench.translators import image_to_foreground
 
+log = logging.getLogger("tactile_bench")
+
 
 class ClassifierSettings(StageConfig):
     """The classifier's architecture and optimisation (see classify.train.ClassifierConfig)."""
@@ -61,6 +68,10 @@ class ClassifyConfig(StageConfig):
     finetune_fraction: float = Field(default=0.0, ge=0.0, le=1.0)
     finetune_epochs: int = Field(default=4, ge=1)
     seeds: list[int] = Field(default=[0], min_length=1)
+    # Seeds trained at once, each in its own process on cores / parallel_seeds threads. A small
+    # classifier gains little from a second thread, so two one-thread processes train two
+    # seeds faster than two threads train them in turn; 1 trains them in turn, here.
+    parallel_seeds: int = Field(default=1, ge=1)
     heldout_fraction: float = Field(default=0.1, ge=0.0, lt=1.0)
     classifier: ClassifierSettings = ClassifierSettings()
 
@@ -154,6 +165,97 @@ def _train_one(
     return model, held_idx
 
 
+def _train_seed_in_worker(
+    ctx: StageContext,
+    seed: int,
+    foreground: torch.Tensor,
+    labels: torch.Tensor,
+    n_classes: int,
+    pool: BrailleSet | None,
+    threads: int,
+) -> tuple[str, torch.Tensor]:
+    """``_train_one`` in a worker process on ``threads`` threads, without progress bars (two
+    would interleave); the model goes back through a file, not a pickle of the module."""
+    torch.set_num_threads(threads)
+    ctx = dataclasses.replace(ctx, trainer={**ctx.trainer, "enable_progress_bar": False})
+    model, held_idx = _train_one(ctx, seed, foreground, labels, n_classes, pool)
+    path = save_classifier(model, ctx.directory / f"seed{seed}" / "trained.pt")
+    return str(path), held_idx
+
+
+_POOL: tuple[int, ProcessPoolExecutor] | None = None  # kept for later stages: spawning costs
+
+
+def _seed_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes, made once a process and reused by every
+    classify stage (each worker's start-up imports torch and Lightning: seconds)."""
+    global _POOL
+    if _POOL is None or _POOL[0] != workers:
+        if _POOL is not None:
+            _POOL[1].shutdown(wait=False, cancel_futures=True)
+        torch.multiprocessing.set_sharing_strategy("file_system")
+        spawn = torch.multiprocessing.get_context("spawn")
+        _POOL = (workers, ProcessPoolExecutor(workers, mp_context=spawn))
+    return _POOL[1]
+
+
+def _forget_pool() -> None:
+    """Drop a broken pool; the next parallel stage spawns a new one."""
+    global _POOL
+    _POOL = None
+
+
+def _train_seeds(
+    ctx: StageContext,
+    foreground: torch.Tensor,
+    labels: torch.Tensor,
+    n_classes: int,
+    pool: BrailleSet | None,
+) -> list[tuple[Any, torch.Tensor]]:
+    """Every seed's trained model and held-out indices, ``parallel_seeds`` at a time.
+
+    Workers are spawned, not forked: a forked child cannot use the parent's OpenMP pool. The
+    tensors reach them through shared memory files (torch's sharing strategy ``file_system``:
+    file descriptors fail in containers), and each worker trains on ``threads`` threads so
+    the workers together use the cores this process had. A seed's training is the same
+    function with the same arguments in either case, so its weights are the same as
+    training it here on that many threads.
+    """
+    config: ClassifyConfig = ctx.config
+    workers = min(config.parallel_seeds, len(config.seeds))
+    if workers <= 1:
+        return [_train_one(ctx, seed, foreground, labels, n_classes, pool) for seed in config.seeds]
+    threads = max(1, torch.get_num_threads() // workers)
+    start = time.perf_counter()
+    executor = _seed_pool(workers)
+    jobs = [
+        executor.submit(
+            _train_seed_in_worker, ctx, seed, foreground, labels, n_classes, pool, threads
+        )
+        for seed in config.seeds
+    ]
+    try:
+        done = [job.result() for job in jobs]
+    except BrokenProcessPool:
+        _forget_pool()
+        raise TactileBenchError(
+            f"stage {ctx.name}: a seed's worker process died (out of memory?); "
+            "set parallel_seeds: 1 to train the seeds in turn"
+        ) from None
+    finally:  # an error or an interrupt: do not leave the pool busy with the other seeds
+        for job in jobs:
+            job.cancel()
+    log.info(
+        "stage %s: %d seeds trained, %d at a time on %d thread(s) each, in %.1f s",
+        ctx.name,
+        len(done),
+        workers,
+        threads,
+        time.perf_counter() - start,
+    )
+    return [(load_classifier(Path(path)), held_idx) for path, held_idx in done]
+
+
 def _init_model_path(init: StageResult, seed: int) -> Path:
     key = f"model_seed{seed}"
     if key not in init.outputs:
@@ -189,8 +291,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
 
     pool = _real_finetune_pool(ctx)
     per_seed = []
-    for seed in config.seeds:
-        model, held_idx = _train_one(ctx, seed, foreground, labels, n_classes, pool)
+    trained = _train_seeds(ctx, foreground, labels, n_classes, pool)
+    for seed, (model, held_idx) in zip(config.seeds, trained, strict=True):
         heldout = (
             evaluate(model, foreground[held_idx], labels[held_idx], num_classes=n_classes)
             if len(held_idx)
