@@ -61,7 +61,7 @@ class BenchConfig:
         *((s, k) for s in ("ddim", "dpmsolver++", "unipc") for k in (1, 2, 4, 8)),
         ("dpmsolver++", 20),
     )
-    presets: tuple[str, ...] = ("cpu", "paper")
+    presets: tuple[str, ...] = ("cpu-small", "cpu", "paper")
     preset_batch: int = 32
     conv_batch: int = 16
     train_warmup: int = 3
@@ -91,7 +91,7 @@ class BenchConfig:
             default_images=64,
             variant_images=16,
             cases=tuple((s, k) for s in ("ddim", "dpmsolver++", "unipc") for k in (1, 2, 4)),
-            presets=("cpu",),
+            presets=("cpu-small", "cpu"),
             preset_batch=8,
             conv_batch=2,
             train_warmup=1,
