@@ -68,10 +68,12 @@ class ClassifyConfig(StageConfig):
     finetune_fraction: float = Field(default=0.0, ge=0.0, le=1.0)
     finetune_epochs: int = Field(default=4, ge=1)
     seeds: list[int] = Field(default=[0], min_length=1)
-    # Seeds trained at once, each in its own process on cores / parallel_seeds threads. A small
-    # classifier gains little from a second thread, so two one-thread processes train two
-    # seeds faster than two threads train them in turn; 1 trains them in turn, here.
-    parallel_seeds: int = Field(default=1, ge=1)
+    parallel_seeds: int = Field(
+        default=1,
+        ge=1,
+        description="seeds trained at once, each in its own process on cores / N threads "
+        "(a small classifier gains little from a second thread); 1: in turn, in this process",
+    )
     heldout_fraction: float = Field(default=0.1, ge=0.0, lt=1.0)
     classifier: ClassifierSettings = ClassifierSettings()
 
