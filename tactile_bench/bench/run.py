@@ -32,7 +32,7 @@ from tactile_bench.bench.threads import thread_settings
 from tactile_bench.bench.timing import torch_threads
 from tactile_bench.data.braille import BrailleSet, build_braille_sets
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.hardware import native_bf16, resolve_precision
+from tactile_bench.hardware import machine_compute
 from tactile_bench.io import atomic_write_json, atomic_write_text
 from tactile_bench.translators.diffusion import DiffusionConfig, DiffusionTranslator
 
@@ -119,11 +119,8 @@ def machine_info() -> dict[str, Any]:
     return {
         "cores": os.cpu_count(),
         "cores_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-        "torch_threads": torch.get_num_threads(),
         "cpu": cpu,
-        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
-        "native_bf16": native_bf16(),
-        "auto_precision": resolve_precision("auto"),
+        **machine_compute(),  # capability, native bf16, threads, what auto picks: as run.json
         "torch": torch.__version__,
         "diffusers": diffusers.__version__,
         "lightning": lightning.__version__,
