@@ -71,6 +71,7 @@ class EffectContext:
     height_mm: float = 24.0
     stochastic: bool = True
     yaw_deg: torch.Tensor | None = None  # (N,) contact yaw, for texture fixed to the object
+    sensor: str = "digit"  # whose fitted optics (response, LED layout) the optics effects use
 
     def mm_per_px(self, x: torch.Tensor) -> tuple[float, float]:
         """(x, y) pixel size in mm of an image-like tensor whose last two dims are (H, W)."""

@@ -15,6 +15,7 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
+from tactile_bench.effects import _taxim_fit
 from tactile_bench.effects._optics_fit import (
     LED_AZIMUTH_DEG,
     N_HARM,
@@ -33,6 +34,7 @@ from tactile_bench.effects.base import (
     scalar,
     surface_gradient,
 )
+from tactile_bench.errors import TactileBenchError
 
 # Depth (mm) over which a contact's flat-slope colour offset fades in.
 CONTACT_OFFSET_MM = 0.05
@@ -52,6 +54,23 @@ def new_scene(
 
 
 _WEIGHTS = torch.tensor(RESPONSE_WEIGHTS, dtype=torch.float32)  # (F, 3, 6)
+
+#: per sensor: (response weights (F, 3, 6), LED azimuths (deg, R, G, B)), each fitted to that
+#: sensor's real calibration (DIGIT: ``_optics_fit``; GelSight, Mini: ``_taxim_fit``)
+SENSOR_OPTICS: dict[str, tuple[torch.Tensor, tuple[float, ...]]] = {
+    "digit": (_WEIGHTS, LED_AZIMUTH_DEG),
+    **{
+        name: (torch.tensor(fit["response_weights"], dtype=torch.float32), fit["led_azimuth_deg"])
+        for name, fit in _taxim_fit.SENSORS.items()
+    },
+}
+
+
+def sensor_optics(sensor: str) -> tuple[torch.Tensor, tuple[float, ...]]:
+    """(response weights, LED azimuths) of a known sensor; unknown names are an error."""
+    if sensor not in SENSOR_OPTICS:
+        raise TactileBenchError(f"unknown sensor {sensor!r}; known: {sorted(SENSOR_OPTICS)}")
+    return SENSOR_OPTICS[sensor]
 
 
 def _features(gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
@@ -82,6 +101,7 @@ def fitted_response(
     u: torch.Tensor,
     v: torch.Tensor,
     contact: torch.Tensor,
+    sensor: str = "digit",
 ) -> torch.Tensor:
     """Real DIGIT colour change (3, *shape) for slope (gx, gy) mm/mm at position (u, v).
 
@@ -92,21 +112,23 @@ def fitted_response(
     gx, gy, u, v, contact = torch.broadcast_tensors(gx, gy, u, v, contact)
     f = _features(gx, gy, contact)
     pos = _position_basis(u, v)
-    return torch.einsum("...f,fcq,...q->c...", f, _WEIGHTS.to(f), pos)
+    weights = sensor_optics(sensor)[0]
+    return torch.einsum("...f,fcq,...q->c...", f, weights.to(f), pos)
 
 
 @lru_cache(maxsize=8)
-def _response_fields(h: int, w: int) -> torch.Tensor:
+def _response_fields(h: int, w: int, sensor: str = "digit") -> torch.Tensor:
     """(F, 3, H, W): each feature's per-channel position field on an H x W image."""
     uu, vv = pixel_grid(h, w)
-    return torch.einsum("fcq,hwq->fchw", _WEIGHTS, _position_basis(uu, vv)).contiguous()
+    weights = sensor_optics(sensor)[0]
+    return torch.einsum("fcq,hwq->fchw", weights, _position_basis(uu, vv)).contiguous()
 
 
 def fitted_response_image(
-    gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor
+    gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor, sensor: str = "digit"
 ) -> torch.Tensor:
-    """Real DIGIT colour change (N, 3, H, W) for slope maps (N, H, W) over the full view."""
-    fields = _response_fields(gx.shape[-2], gx.shape[-1])
+    """A real sensor's colour change (N, 3, H, W) for slope maps (N, H, W) over the view."""
+    fields = _response_fields(gx.shape[-2], gx.shape[-1], sensor)
     r = torch.sqrt(gx**2 + gy**2 + 1e-12)
     t = torch.atan(r) * (2 / math.pi)
     c1, s1 = gx / r, gy / r
@@ -131,7 +153,7 @@ def fitted_response_image(
 def _real_response(height: torch.Tensor, ctx: EffectContext) -> torch.Tensor:
     gx, gy = surface_gradient(height, ctx)
     contact = (height / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
-    return fitted_response_image(gx[:, 0], gy[:, 0], contact[:, 0])
+    return fitted_response_image(gx[:, 0], gy[:, 0], contact[:, 0], ctx.sensor)
 
 
 class OpticalResponse(Effect):
@@ -255,10 +277,11 @@ class Shadows(Effect):
             or (isinstance(soft, torch.Tensor) and soft.requires_grad)
         )
         masks = []
+        azimuths = sensor_optics(ctx.sensor)[1]
         if not grad:  # write each LED's running max into its channel, no temporaries
-            occ = z.new_empty(z.shape[0], len(LED_AZIMUTH_DEG), h, w)
+            occ = z.new_empty(z.shape[0], len(azimuths), h, w)
             tmp = torch.empty_like(z)
-        for led, az in enumerate(LED_AZIMUTH_DEG):
+        for led, az in enumerate(azimuths):
             a = math.radians(az)
             sight = None  # highest rise of the surface above the line of sight to this LED
             seen = set()

@@ -14,6 +14,7 @@ from functools import lru_cache
 
 import torch
 
+from tactile_bench.effects import _taxim_fit
 from tactile_bench.errors import TactileBenchError
 
 # (channel, k_y, k_x) coefficients of cos(pi k_y (i + .5) / H) cos(pi k_x (j + .5) / W),
@@ -44,10 +45,22 @@ DIGIT_BACKGROUND_DCT = ((( 99.26,  38.99, -17.47,  -2.86,  -0.94,   0.39),
   (  3.01,  -0.62,   0.11,  -0.02,   0.93,   0.66)))
 # fmt: on
 
+#: no-contact field (DCT coefficients) of each sensor whose real frame was measured
+BACKGROUND_DCT: dict[str, tuple] = {
+    "digit": DIGIT_BACKGROUND_DCT,
+    **{name: fit["background_dct"] for name, fit in _taxim_fit.SENSORS.items()},
+}
+#: (width, height) of each sensor's view of its gel, mm: the DIGIT's 18 x 24 mm portrait view;
+#: the GelSights' 640 x 480 frames at Taxim's measured pixmm
+GEL_MM: dict[str, tuple[float, float]] = {
+    "digit": (18.0, 24.0),
+    **{name: tuple(fit["gel_mm"]) for name, fit in _taxim_fit.SENSORS.items()},
+}
+
 
 @dataclass(frozen=True)
 class UnitField:
-    """How one DIGIT unit's field differs from the measured one.
+    """How one unit's field differs from its sensor's measured one.
 
     ``mirror_x`` flips the field left-right (LED ring mounted the other way round),
     ``shift`` moves it by a fraction of the frame (x, y), ``rotation_deg`` turns it about
@@ -59,6 +72,7 @@ class UnitField:
     rotation_deg: float = 0.0
     gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sensor: str = "digit"  # the sensor model whose measured field, gel and optics it has
 
 
 # "digit" is the measured unit. "digit-b" is a plausible second unit (an estimate, not a
@@ -72,6 +86,7 @@ UNITS: dict[str, UnitField] = {
         gain=(0.88, 1.06, 1.12),
         offset=(4.0, -2.0, 3.0),
     ),
+    **{name: UnitField(sensor=name) for name in _taxim_fit.SENSORS},
 }
 
 
@@ -84,7 +99,7 @@ def _size_hw(size: int | tuple[int, int]) -> tuple[int, int]:
 
 @lru_cache(maxsize=16)
 def _field(h: int, w: int, unit: UnitField) -> torch.Tensor:
-    coef = torch.tensor(DIGIT_BACKGROUND_DCT, dtype=torch.float64)  # (3, K, K)
+    coef = torch.tensor(BACKGROUND_DCT[unit.sensor], dtype=torch.float64)  # (3, K, K)
     k = coef.shape[-1]
     y = (torch.arange(h, dtype=torch.float64) + 0.5) / h
     x = (torch.arange(w, dtype=torch.float64) + 0.5) / w
@@ -108,9 +123,10 @@ def _field(h: int, w: int, unit: UnitField) -> torch.Tensor:
 
 
 def digit_background(size: int | tuple[int, int], unit: str = "digit") -> torch.Tensor:
-    """No-contact frame of a DIGIT unit, (3, S, S) (or (3, H, W) for a tuple), 0..255.
+    """No-contact frame of a unit, (3, S, S) (or (3, H, W) for a tuple), 0..255.
 
-    Like the paper, the 240 x 320 portrait frame is resized to the requested size.
+    Like the paper, the sensor's frame (the DIGIT's 240 x 320 portrait, a GelSight's
+    640 x 480 landscape) is resized to the requested size.
     """
     if unit not in UNITS:
         raise TactileBenchError(f"unknown DIGIT unit {unit!r}; known: {sorted(UNITS)}")

@@ -40,7 +40,7 @@ from tactile_bench.effects.base import EffectContext, ParamValue, area_pool, rep
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
-from tactile_bench.sensor.background import UNITS, digit_background
+from tactile_bench.sensor.background import GEL_MM, UNITS, digit_background
 from tactile_bench.sensor.depth import GelSpec, render_height
 from tactile_bench.sensor.heightfield import HeightFieldBank
 from tactile_bench.sensor.optics import SimOptics
@@ -155,6 +155,16 @@ class SurrogateDigit:
         on = self.effects_enabled
         return f"SurrogateDigit(name={self.name!r}, unit={self.unit!r}, effects={on})"
 
+    @property
+    def sensor(self) -> str:
+        """The sensor model of this unit (``digit``, ``gelsight``, ``gelsight-mini``)."""
+        return UNITS[self.unit].sensor
+
+    def gel(self, size: int = 64, oversample: int = 2) -> GelSpec:
+        """This sensor's view of its gel at ``size`` x ``size`` (the DIGIT's 18 x 24 mm, ...)."""
+        width, height = GEL_MM[self.sensor]
+        return GelSpec(width, height, size, oversample)
+
     # ------------------------------------------------------------------ effect switches
     @property
     def effects_enabled(self) -> list[str]:
@@ -216,12 +226,12 @@ class SurrogateDigit:
         Entry point for callers without a braille bank (pretraining objects, a depth image
         from elsewhere): stages 3-6 of the model. Any H, W works; ``gel.size`` sets S.
         """
-        gel = gel or GelSpec()
+        gel = gel or self.gel()
         if height.dim() != 4 or height.shape[1] != 1:
             raise TactileBenchError(
                 f"render_surface: height must be (N, 1, H, W), got {tuple(height.shape)}"
             )
-        ctx = EffectContext(gel.width_mm, gel.height_mm, stochastic, yaw_deg)
+        ctx = EffectContext(gel.width_mm, gel.height_mm, stochastic, yaw_deg, self.sensor)
         h = self._apply_stage("geometry", height.float(), generator, ctx)
         with timed("real.resize"):
             surface = _resize(h.clamp(min=0.0), gel.size)
@@ -265,7 +275,7 @@ class SurrogateDigit:
         Rendered through the same stages with nothing within ``NO_CONTACT_MM`` of the gel,
         so per-unit effects (background, LEDs, wear, lens, tone curve, JPEG) show in it.
         """
-        gel = size if isinstance(size, GelSpec) else GelSpec(size=int(size))
+        gel = size if isinstance(size, GelSpec) else self.gel(int(size))
         n = gel.size * gel.oversample
         flat = torch.full((1, 1, n, n), -NO_CONTACT_MM)
         return self.render_surface(flat, gel, None, stochastic=False)[0]
@@ -299,9 +309,9 @@ class SurrogateDigit:
         chunks are drawn in order, so a result depends on the generator state, not on
         ``chunk`` for the noise-free effects.
         """
-        gel = gel or GelSpec()
+        gel = gel or self.gel()
         generator = generator if generator is not None else torch.Generator().manual_seed(0)
-        ctx = EffectContext(gel.width_mm, gel.height_mm, True)
+        ctx = EffectContext(gel.width_mm, gel.height_mm, True, sensor=self.sensor)
         parts = []
         for k in range(0, len(poses), chunk):
             sub = poses.index(slice(k, k + chunk))
@@ -321,7 +331,7 @@ class SurrogateDigit:
         generator: torch.Generator | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``(render(...), background(gel))``: images and this unit's no-contact frame."""
-        gel = gel or GelSpec()
+        gel = gel or self.gel()
         return self.render(bank, poses, gel, generator), self.background(gel)
 
 

@@ -1,0 +1,68 @@
+"""Fit a sensor's optical response from real (depth, image) pairs, as Taxim calibrates one.
+
+Taxim (Si & Yuan 2022) presses a ball of known size across the gel and tabulates the colour
+change against the surface gradient (magnitude and direction) with a quadratic field over the
+pixel position. We fit the same quantity in the compact form the surrogate renders with
+(``effects.optics``: powers of the slope angle times direction harmonics, each with a
+quadratic position field; 22 x 3 x 6 numbers) by ridge least squares over every pixel of
+the given frames. Works from tensors only: any sensor, any source of pairs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from tactile_bench.effects.base import EffectContext, pixel_grid, surface_gradient
+from tactile_bench.effects.optics import CONTACT_OFFSET_MM, _features, _position_basis
+
+RIDGE = 1e-3  # relative to the mean diagonal of the normal matrix: keeps unseen slopes tame
+
+
+def response_design(surface: torch.Tensor, gel_mm: tuple[float, float]) -> torch.Tensor:
+    """(N, H, W, F * 6) regressors of the compact model for gel surfaces (N, 1, H, W), mm."""
+    ctx = EffectContext(gel_mm[0], gel_mm[1], False)
+    gx, gy = surface_gradient(surface.float(), ctx)
+    contact = (surface.float() / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
+    feats = _features(gx[:, 0], gy[:, 0], contact[:, 0])  # (N, H, W, F)
+    uu, vv = pixel_grid(*surface.shape[-2:])
+    pos = _position_basis(uu, vv)  # (H, W, 6)
+    return (feats[..., :, None] * pos[None, :, :, None, :]).flatten(-2)
+
+
+def fit_response(
+    surface: torch.Tensor,
+    delta: torch.Tensor,
+    gel_mm: tuple[float, float],
+    ridge: float = RIDGE,
+    chunk: int = 8,
+) -> np.ndarray:
+    """Weights (F, 3, 6) so that the compact model maps ``surface`` to ``delta`` (N, 3, H, W).
+
+    Normal equations accumulated ``chunk`` frames at a time in float64 (memory stays at a
+    few frames whatever N is), then a ridge-regularised solve.
+    """
+    if surface.shape[0] != delta.shape[0] or surface.shape[-2:] != delta.shape[-2:]:
+        raise ValueError(f"surface {tuple(surface.shape)} and delta {tuple(delta.shape)} differ")
+    xtx = xty = None
+    for k in range(0, surface.shape[0], chunk):
+        x = response_design(surface[k : k + chunk], gel_mm).double()
+        x = x.reshape(-1, x.shape[-1])
+        y = delta[k : k + chunk].double().permute(0, 2, 3, 1).reshape(-1, 3)
+        a, b = x.T @ x, x.T @ y
+        xtx, xty = (a, b) if xtx is None else (xtx + a, xty + b)
+    assert xtx is not None and xty is not None
+    lam = ridge * float(torch.diagonal(xtx).mean())
+    w = torch.linalg.solve(xtx + lam * torch.eye(xtx.shape[0], dtype=xtx.dtype), xty)
+    n_feat = w.shape[0] // 6
+    return w.reshape(n_feat, 6, 3).permute(0, 2, 1).numpy()  # (F, 3, 6)
+
+
+def predict_delta(
+    surface: torch.Tensor, weights: np.ndarray | torch.Tensor, gel_mm: tuple[float, float]
+) -> torch.Tensor:
+    """Colour change (N, 3, H, W) of the compact model with ``weights`` (F, 3, 6)."""
+    w = torch.as_tensor(np.asarray(weights), dtype=torch.float32)
+    x = response_design(surface, gel_mm)  # (N, H, W, F*6)
+    flat = w.permute(0, 2, 1).reshape(-1, 3)  # (F*6, 3), same order as the design
+    return (x @ flat).permute(0, 3, 1, 2)
