@@ -156,6 +156,9 @@ def _cmd_ground(ns: argparse.Namespace) -> int:
 
     from tactile_bench.sensor.grounding import default_real_dir, grounding_report
 
+    if ns.refit or ns.profile:
+        return _ground_on_presses(ns)
+
     real_dir = Path(ns.real_dir) if ns.real_dir else default_real_dir()
     if real_dir is None or not real_dir.is_dir():
         raise TactileBenchError(
@@ -195,6 +198,64 @@ def _cmd_ground(ns: argparse.Namespace) -> int:
             f"  optical response (surrogate's own torch code vs calibration): MAE "
             f"{ours['mae']:.2f} (below 60 deg {ours['mae_below_60deg']:.2f})"
         )
+    return 0
+
+
+def _ground_on_presses(ns: argparse.Namespace) -> int:
+    """``ground --profile``: a profile against held-out real presses (or ``--refit``)."""
+    import json
+
+    from tactile_bench.real_presses import ground_profile, print_ground, refit_module
+
+    if ns.refit:
+        print(refit_module(), end="")
+        return 0
+    figure = Path(ns.figure) if ns.figure else None
+    report = ground_profile(ns.profile, figure=figure)
+    if ns.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print_ground(report)
+        if figure is not None:
+            print(f"  figure: {figure}")
+    return 0
+
+
+def _cmd_real_translators(ns: argparse.Namespace) -> int:
+    """``real-translators``: cGAN and diffusion fitted on half the real presses, tested on
+    the other half beside plain and calibrated sim."""
+    import json
+
+    from tactile_bench.io import atomic_write_json
+    from tactile_bench.real_presses import profile_sensor, translators_on_presses
+
+    profile_sensor(ns.sensor)  # a sensor without real presses fails before any work
+    for name in ("pretrain_steps", "finetune_steps", "cgan_steps", "pretrain_pairs"):
+        if getattr(ns, name) < 1:
+            raise TactileBenchError(f"--{name.replace('_', '-')}: must be at least 1")
+    out = Path(ns.out)
+    if out.exists() and not out.is_dir():
+        raise TactileBenchError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    report = translators_on_presses(
+        ns.sensor,
+        out,
+        pretrain_pairs=ns.pretrain_pairs,
+        pretrain_steps=ns.pretrain_steps,
+        finetune_steps=ns.finetune_steps,
+        cgan_steps=ns.cgan_steps,
+    )
+    atomic_write_json(out / "report.json", report)
+    print(
+        f"{ns.sensor}: fitted on {report['n_fit']} real presses, measured on "
+        f"{report['n_heldout']} held-out ones"
+    )
+    print(f"  {'row':<15} {'SSIM':>7} {'MSE':>8} {'KID':>16}")
+    for name, r in report["rows"].items():
+        kid = f"{r['kid']:>8.4f} +- {r['kid_std']:.4f}"
+        print(f"  {name:<15} {r['ssim']:>7.4f} {r['mse']:>8.1f} {kid}")
+    print(f"  seconds: {json.dumps(report['seconds'])}, total {report['total_seconds']}")
+    print(f"wrote {out / 'report.json'} and {report['figure']}")
     return 0
 
 
@@ -264,7 +325,30 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ground.add_argument("--real-dir", help="folder with the reference files (default: found)")
     ground.add_argument("--json", action="store_true", help="print every number as JSON")
+    ground.add_argument(
+        "--profile",
+        help="a GelSight profile (gelsight, gelsight-mini) against held-out real presses "
+        "from the taxim package (pip install -e '.[real]')",
+    )
+    ground.add_argument("--figure", help="with --profile: write depth | sim | surrogate | real")
+    ground.add_argument(
+        "--refit",
+        action="store_true",
+        help="refit the GelSight profiles' numbers from the even presses; print the module",
+    )
     ground.set_defaults(func=_cmd_ground)
+
+    rt = sub.add_parser(
+        "real-translators",
+        help="cGAN and diffusion on real GelSight presses (taxim package): fit half, test half",
+    )
+    rt.add_argument("sensor", choices=("gelsight", "gelsight-mini"))
+    rt.add_argument("--out", required=True, metavar="DIR", help="folder for models and report")
+    rt.add_argument("--pretrain-pairs", type=int, default=600, help="stand-in corpus size")
+    rt.add_argument("--pretrain-steps", type=int, default=100, help="diffusion pretraining")
+    rt.add_argument("--finetune-steps", type=int, default=60, help="diffusion on real presses")
+    rt.add_argument("--cgan-steps", type=int, default=200, help="cGAN on real presses")
+    rt.set_defaults(func=_cmd_real_translators)
 
     lst = sub.add_parser("list", help="list translators, effects, recipes and stage kinds")
     lst.add_argument("what", nargs="?", choices=sorted(LISTINGS), help="only this listing")

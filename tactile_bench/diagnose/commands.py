@@ -154,8 +154,12 @@ def _cmd_export_pairs(ns: argparse.Namespace) -> int:
     from tactile_bench.diagnose.paired import from_braille_set, write_paired
     from tactile_bench.geometry.braille import CHARACTERS
 
+    if ns.real_presses is not None:
+        return _export_real_presses(ns)
     if (ns.source is None) == (ns.generate is None):
-        raise TactileBenchError("export-pairs: give a run/stage folder or .npz, or --generate N")
+        raise TactileBenchError(
+            "export-pairs: give a run/stage folder or .npz, --generate N or --real-presses SENSOR"
+        )
     if ns.chars is not None:
         unknown = sorted(set(ns.chars) - set(CHARACTERS))
         if unknown or len(ns.chars) < 1:
@@ -174,6 +178,22 @@ def _cmd_export_pairs(ns: argparse.Namespace) -> int:
         what = f"pairs of {path}"
     root = write_paired(ns.out, from_braille_set(bset, chars), overwrite=ns.overwrite)
     print(f"wrote {len(bset)} {what} to {root} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _export_real_presses(ns: argparse.Namespace) -> int:
+    from tactile_bench.diagnose.paired import write_paired
+    from tactile_bench.real_presses import press_pairs
+
+    if ns.source is not None or ns.generate is not None:
+        raise TactileBenchError("export-pairs: --real-presses takes no source and no --generate")
+    start = time.perf_counter()
+    data = press_pairs(ns.real_presses, ns.size)
+    root = write_paired(ns.out, data, overwrite=ns.overwrite)
+    print(
+        f"wrote {len(data)} real {ns.real_presses} presses (sim: our simulator on the real "
+        f"no-contact frame) to {root} in {time.perf_counter() - start:.1f} s"
+    )
     return 0
 
 
@@ -228,6 +248,12 @@ def register(subparsers: Any) -> None:
         help="--generate: contact grid; classifier = upright, yaw -25..25 deg, +-3 mm (396 a "
         "character; what the downstream classifiers learn from); finetune = yaw 0, +-45, "
         "+-90 deg, +-5 mm (180 a character; the paper's paired real set)",
+    )
+    exp.add_argument(
+        "--real-presses",
+        metavar="SENSOR",
+        help="write the real ball presses of the taxim package (gelsight, gelsight-mini) "
+        "instead: depth from the annotated sphere, sim from our simulator",
     )
     exp.add_argument("--profile", default="digit", help="surrogate profile playing 'real'")
     exp.add_argument("--chars", help="braille characters (default: the stage's, or all 27)")
