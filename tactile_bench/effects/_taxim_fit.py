@@ -1,7 +1,7 @@
 """GelSight and GelSight Mini optics, fitted to the real frames the ``taxim`` package
 ships.
 
-Source: taxim 1.4.1 (PyPI, MIT), taxim/calib/{gelsight,gelsight_mini}/ dataPack.npz and params.json.
+Source: taxim 1.4.1 (PyPI, MIT), taxim/calib/{gelsight,gelsight_mini}/ dataPack.npz, params.json.
 Each sensor's numbers come from its even-numbered presses only
 (``tactile_bench.sensor.press_grounding.fit_sensor``); the odd ones are held out for
 ``ground --profile``. Regenerate with ``python -m tactile_bench ground --profile
@@ -33,4 +33,3 @@ SENSORS: dict[str, dict] = {
     },
 }
 # fmt: on
-

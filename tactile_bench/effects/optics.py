@@ -116,19 +116,30 @@ def fitted_response(
     return torch.einsum("...f,fcq,...q->c...", f, weights.to(f), pos)
 
 
+def response_fields(weights: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """(F, 3, H, W): each feature's per-channel position field for ``weights`` (F, 3, 6)."""
+    uu, vv = pixel_grid(h, w)
+    return torch.einsum("fcq,hwq->fchw", weights, _position_basis(uu, vv)).contiguous()
+
+
 @lru_cache(maxsize=8)
 def _response_fields(h: int, w: int, sensor: str = "digit") -> torch.Tensor:
-    """(F, 3, H, W): each feature's per-channel position field on an H x W image."""
-    uu, vv = pixel_grid(h, w)
-    weights = sensor_optics(sensor)[0]
-    return torch.einsum("fcq,hwq->fchw", weights, _position_basis(uu, vv)).contiguous()
+    """A known sensor's ``response_fields``, cached per size."""
+    return response_fields(sensor_optics(sensor)[0], h, w)
 
 
 def fitted_response_image(
     gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor, sensor: str = "digit"
 ) -> torch.Tensor:
     """A real sensor's colour change (N, 3, H, W) for slope maps (N, H, W) over the view."""
-    fields = _response_fields(gx.shape[-2], gx.shape[-1], sensor)
+    return response_image(gx, gy, contact, _response_fields(gx.shape[-2], gx.shape[-1], sensor))
+
+
+def response_image(
+    gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor, fields: torch.Tensor
+) -> torch.Tensor:
+    """Colour change (N, 3, H, W) of the compact model with position ``fields`` (F, 3, H, W)
+    for slope maps and contact weights (N, H, W): feature by feature, in place."""
     r = torch.sqrt(gx**2 + gy**2 + 1e-12)
     t = torch.atan(r) * (2 / math.pi)
     c1, s1 = gx / r, gy / r

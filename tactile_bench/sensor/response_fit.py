@@ -14,7 +14,13 @@ import numpy as np
 import torch
 
 from tactile_bench.effects.base import EffectContext, pixel_grid, surface_gradient
-from tactile_bench.effects.optics import CONTACT_OFFSET_MM, _features, _position_basis
+from tactile_bench.effects.optics import (
+    CONTACT_OFFSET_MM,
+    _features,
+    _position_basis,
+    response_fields,
+    response_image,
+)
 
 RIDGE = 1e-3  # relative to the mean diagonal of the normal matrix: keeps unseen slopes tame
 
@@ -45,13 +51,18 @@ def fit_response(
     if surface.shape[0] != delta.shape[0] or surface.shape[-2:] != delta.shape[-2:]:
         raise ValueError(f"surface {tuple(surface.shape)} and delta {tuple(delta.shape)} differ")
     xtx = xty = None
+    n_cols = response_design(surface[:1, :, :2, :2], gel_mm).shape[-1]
     for k in range(0, surface.shape[0], chunk):
-        x = response_design(surface[k : k + chunk], gel_mm).double()
-        x = x.reshape(-1, x.shape[-1])
-        y = delta[k : k + chunk].double().permute(0, 2, 3, 1).reshape(-1, 3)
+        x = response_design(surface[k : k + chunk], gel_mm).reshape(-1, n_cols)
+        y = delta[k : k + chunk].permute(0, 2, 3, 1).reshape(-1, 3)
+        # flat, untouched pixels have every feature 0: they add nothing to either sum
+        active = x.abs().amax(1) > 0
+        x, y = x[active].double(), y[active].double()
         a, b = x.T @ x, x.T @ y
         xtx, xty = (a, b) if xtx is None else (xtx + a, xty + b)
     assert xtx is not None and xty is not None
+    if not bool(torch.diagonal(xtx).gt(0).any()):
+        raise ValueError("fit_response: no pixel has a contact or a slope to fit on")
     lam = ridge * float(torch.diagonal(xtx).mean())
     w = torch.linalg.solve(xtx + lam * torch.eye(xtx.shape[0], dtype=xtx.dtype), xty)
     n_feat = w.shape[0] // 6
@@ -61,8 +72,14 @@ def fit_response(
 def predict_delta(
     surface: torch.Tensor, weights: np.ndarray | torch.Tensor, gel_mm: tuple[float, float]
 ) -> torch.Tensor:
-    """Colour change (N, 3, H, W) of the compact model with ``weights`` (F, 3, 6)."""
+    """Colour change (N, 3, H, W) of the compact model with ``weights`` (F, 3, 6).
+
+    The surrogate's own fast path (``effects.optics.response_image``): no (N, H, W, F * 6)
+    design is ever held, which lets the diagnosis render it at every fit step.
+    """
     w = torch.as_tensor(np.asarray(weights), dtype=torch.float32)
-    x = response_design(surface, gel_mm)  # (N, H, W, F*6)
-    flat = w.permute(0, 2, 1).reshape(-1, 3)  # (F*6, 3), same order as the design
-    return (x @ flat).permute(0, 3, 1, 2)
+    ctx = EffectContext(gel_mm[0], gel_mm[1], False)
+    gx, gy = surface_gradient(surface.float(), ctx)
+    contact = (surface.float() / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
+    fields = response_fields(w, *surface.shape[-2:])
+    return response_image(gx[:, 0], gy[:, 0], contact[:, 0], fields)
