@@ -115,6 +115,7 @@ def press_pairs(sensor: str, size: int = 64) -> PairedData:
         sim_background=presses.background,
         labels=[""] * len(presses),
         names=presses.names,
+        gel_mm=presses.gel_mm,
     )
 
 

@@ -7,6 +7,8 @@ Layout on disk (documented in docs/diagnosis.md)::
     <root>/real/<label>/<name>.png    8-bit RGB, the real sensor's image of it
     <root>/background.png             the real sensor's no-contact frame
     <root>/sim_background.png         optional: the simulator's no-contact frame
+    <root>/gel.json                   optional: {"width_mm": W, "height_mm": H}, the view
+                                      the square images cover (default: a DIGIT's 18 x 24)
 
 ``<label>/`` may be absent (unlabelled data: files directly under depth/, sim/, real/).
 Labels that are not safe folder names are encoded (``label_to_dir``): ``#`` is written as
@@ -42,6 +44,9 @@ _DIR_LABELS = {v: k for k, v in NAMED_LABEL_DIRS.items()}
 PARTS = ("depth", "sim", "real")
 UM_PER_MM = 1000.0
 LAYOUTS = ("paired", "tactile_diffusion")
+DIGIT_GEL_MM = (18.0, 24.0)  # what a folder without gel.json is taken to show
+GEL_FILE = "gel.json"
+MAX_GEL_MM = 500.0
 
 
 @dataclass
@@ -53,6 +58,7 @@ class PairedData:
     background: (3, S, S) the real sensor's no-contact frame, 0..255.
     sim_background: (3, S, S) the simulator's no-contact frame, or None when not given.
     labels: N label strings ("" when unlabelled); names: N file stems (for reports).
+    gel_mm: (width, height) of the gel view the images cover, mm: slopes depend on it.
     """
 
     depth: torch.Tensor
@@ -62,6 +68,7 @@ class PairedData:
     sim_background: torch.Tensor | None
     labels: list[str]
     names: list[str]
+    gel_mm: tuple[float, float] = DIGIT_GEL_MM
 
     def __post_init__(self) -> None:
         n = len(self.names)
@@ -92,6 +99,7 @@ class PairedData:
             self.sim_background,
             [self.labels[i] for i in index.tolist()],
             [self.names[i] for i in index.tolist()],
+            self.gel_mm,
         )
 
 
@@ -233,8 +241,32 @@ def _load_layout(root: Path) -> PairedData:
     sim_bg_path = root / "sim_background.png"
     sim_bg = read_rgb(sim_bg_path, size) if sim_bg_path.exists() else None
     return PairedData(
-        torch.stack(depth), torch.stack(sim), torch.stack(real), background, sim_bg, labels, names
+        torch.stack(depth),
+        torch.stack(sim),
+        torch.stack(real),
+        background,
+        sim_bg,
+        labels,
+        names,
+        read_gel(root),
     )
+
+
+def read_gel(root: Path) -> tuple[float, float]:
+    """The gel view of a paired folder: its ``gel.json``, else a DIGIT's 18 x 24 mm."""
+    path = root / GEL_FILE
+    if not path.exists():
+        return DIGIT_GEL_MM
+    try:
+        obj = json.loads(path.read_text())
+        gel = (float(obj["width_mm"]), float(obj["height_mm"]))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise TactileBenchError(f"{path}: not readable JSON ({exc})".splitlines()[0]) from None
+    except (KeyError, TypeError, ValueError):
+        raise TactileBenchError(f"{path}: needs numbers width_mm and height_mm") from None
+    if not all(np.isfinite(v) and 0 < v <= MAX_GEL_MM for v in gel):
+        raise TactileBenchError(f"{path}: width_mm, height_mm must be in (0, {MAX_GEL_MM:g}] mm")
+    return gel
 
 
 def _load_tactile_diffusion(base: Path, size: int) -> PairedData:
@@ -326,6 +358,9 @@ def write_paired(root: str | os.PathLike, data: PairedData, overwrite: bool = Fa
         _save_png(_rgb_u8(data.background), tmp / "background.png")
         if data.sim_background is not None:
             _save_png(_rgb_u8(data.sim_background), tmp / "sim_background.png")
+        if tuple(data.gel_mm) != DIGIT_GEL_MM:
+            gel = {"width_mm": float(data.gel_mm[0]), "height_mm": float(data.gel_mm[1])}
+            (tmp / GEL_FILE).write_text(json.dumps(gel) + "\n")
         if root.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".old", dir=root.parent))
             os.replace(root, old / root.name)
