@@ -12,7 +12,13 @@ The candidate simulator starts from what paired data hold, never from a sensor p
   ``delta + SimOptics(h') - SimOptics(h)`` (noise-free). Exact for the built-in simulator,
   a first-order model for a user's own one;
 - **optics** effects act on that scene, **camera** effects on its composite, as in
-  ``SurrogateDigit``.
+  ``SurrogateDigit``;
+- ``optical_response`` is a **lookup fitted from the pairs** (colour change against the
+  surface slope and the pixel position, as Taxim calibrates a sensor from ball presses;
+  ``sensor.response_fit``), by least squares on the *fit split's* real frames minus the
+  measured no-contact frame, under whatever gel geometry the candidate set applies (refitted,
+  cached, when that geometry changes). It stands for any sensor's own optics, not one
+  DIGIT's table; ``blend`` moves the sim's colour change towards it.
 
 Every parameter not searched is held at its **neutral** value: ``Effect.apply`` fills
 missing parameters with *defaults*, the very values the default surrogate profile uses, so
@@ -42,9 +48,10 @@ Left out or modelled differently, and why:
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import torch
@@ -57,9 +64,11 @@ from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.optics import SimOptics
+from tactile_bench.sensor.response_fit import fit_response, predict_delta, response_design
 
-GEL = GelSpec()  # paired data carry no gel size: a DIGIT's 18 x 24 mm view
+GEL = GelSpec()  # the view when paired data name none (gel.json): a DIGIT's 18 x 24 mm
 OVERSAMPLE = 2  # geometry effects act at this multiple of the image size
+LOOKUP_PAIRS = 64  # fit-split pairs the optical-response lookup is fitted on (the first)
 NOT_CANDIDATES: dict[str, str] = {
     "pose_error": "needs the contact pose and mesh, which paired images lack",
     "press_error": "needs the contact pose and mesh, which paired images lack",
@@ -115,6 +124,17 @@ class Base:
     measured: torch.Tensor  # (3, S, S) the real sensor's no-contact frame
     _shading: dict[int, torch.Tensor] = field(default_factory=dict, repr=False)
     latent: dict[str, torch.Tensor] = field(default_factory=dict)  # per-pair hidden values
+    gel_mm: tuple[float, float] = (GEL.width_mm, GEL.height_mm)  # the view the images cover
+    # the fit split's (depth, real - measured background): what the response lookup is
+    # fitted on; shared by every base of one diagnosis, as is the cache of fitted lookups
+    lookup_fit: tuple[torch.Tensor, torch.Tensor] | None = None
+    lookup_cache: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
+    baked: dict[str, Any] = field(default_factory=dict)  # geometry already in ``depth``
+    lookup: torch.Tensor | None = None  # the lookup for the current render (set by render)
+
+    def context(self, stochastic: bool = True) -> EffectContext:
+        """The effects' context for these pairs: their gel view."""
+        return EffectContext(self.gel_mm[0], self.gel_mm[1], stochastic)
 
     def __len__(self) -> int:
         return len(self.depth)
@@ -126,14 +146,14 @@ class Base:
     def subset(self, idx: torch.Tensor) -> Base:
         shading = {k: v[idx] for k, v in self._shading.items()}
         latent = {k: v[idx] for k, v in self.latent.items()}
-        return Base(
-            self.depth[idx], self.delta[idx], self.background, self.measured, shading, latent
+        return replace(
+            self, depth=self.depth[idx], delta=self.delta[idx], _shading=shading, latent=latent
         )
 
     def with_latent(self, name: str, value: float) -> Base:
         """The same pairs with ``name``'s hidden per-pair value set to ``value`` for all."""
         latent = {**self.latent, name: torch.full((len(self),), float(value))}
-        return Base(self.depth, self.delta, self.background, self.measured, self._shading, latent)
+        return replace(self, latent=latent)
 
     def depth_at(self, factor: int) -> torch.Tensor:
         """The depth resampled to ``factor`` x the image size (bilinear)."""
@@ -146,7 +166,7 @@ class Base:
         trip through ``factor`` x the size as the geometry effects take: cached."""
         if factor not in self._shading:
             height = F.avg_pool2d(self.depth_at(factor), factor) if factor > 1 else self.depth
-            self._shading[factor] = sim_shading(height, self.background)
+            self._shading[factor] = sim_shading(height, self.background, self.gel_mm)
         return self._shading[factor]
 
     def precompute(self) -> Base:
@@ -156,18 +176,45 @@ class Base:
         return self
 
 
-def make_base(data: PairedData, idx: torch.Tensor | None = None) -> Base:
-    """The base scene of the pairs at ``idx`` (all by default)."""
+def make_base(
+    data: PairedData,
+    idx: torch.Tensor | None = None,
+    lookup_from: torch.Tensor | None = None,
+    lookup_cache: dict[str, torch.Tensor] | None = None,
+) -> Base:
+    """The base scene of the pairs at ``idx`` (all by default).
+
+    ``lookup_from``: the fit split, whose real frames the ``optical_response`` lookup is
+    fitted on (never the pairs it is scored on); without it that candidate cannot render.
+    Bases of one diagnosis share ``lookup_cache`` so each lookup is fitted once.
+    """
+    lookup_fit = None
+    if lookup_from is not None:
+        # 22 x 6 coefficients a channel: LOOKUP_PAIRS contacts hold far more pixels than that
+        fit = data.subset(torch.as_tensor(lookup_from, dtype=torch.long)[:LOOKUP_PAIRS])
+        lookup_fit = (fit.depth.float(), fit.real.float() - fit.background.float()[None])
     if idx is not None:
         data = data.subset(idx)
     bg = data.sim_background if data.sim_background is not None else data.background
     bg = bg.float()[None]
-    return Base(data.depth.float(), data.sim.float() - bg, bg, data.background.float())
+    return Base(
+        data.depth.float(),
+        data.sim.float() - bg,
+        bg,
+        data.background.float(),
+        gel_mm=tuple(data.gel_mm),
+        lookup_fit=lookup_fit,
+        lookup_cache=lookup_cache if lookup_cache is not None else {},
+    )
 
 
-def sim_shading(height: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+def sim_shading(
+    height: torch.Tensor,
+    background: torch.Tensor,
+    gel_mm: tuple[float, float] = (GEL.width_mm, GEL.height_mm),
+) -> torch.Tensor:
     """SimOptics' noise-free colour change of ``height`` over ``background`` (as the surrogate)."""
-    gel = GelSpec(GEL.width_mm, GEL.height_mm, height.shape[-1], 1)
+    gel = GelSpec(gel_mm[0], gel_mm[1], height.shape[-1], 1)
     bg = background.reshape(3, *background.shape[-2:])
     return SimOptics().render(height, bg, None, gel) - bg
 
@@ -351,12 +398,73 @@ def _smear(
     return y[..., i0 : i0 + h, j0 : j0 + w].reshape(n, c, h, w)
 
 
+class FittedResponse(Candidate):
+    """optical_response as a lookup fitted from the pairs (module docstring): ``blend``
+    moves the sim's colour change towards the lookup's; nothing of any one sensor is used."""
+
+    def apply(
+        self,
+        x: Any,
+        params: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+        base: Base,
+    ) -> Any:
+        if base.lookup is None:
+            raise TactileBenchError(
+                "optical_response: no fitted lookup (the fit split's pairs were not given)"
+            )
+        blend = torch.as_tensor(self.full_params(params)["blend"])
+        fitted = predict_delta(x.height, base.lookup, base.gel_mm)
+        return x.replace(delta=(1 - blend) * x.delta + blend * fitted)
+
+
+def _deterministic_geometry(effects: Mapping[str, Any]) -> dict[str, Any]:
+    """The geometry effects of ``effects`` the lookup can be refitted under (no draws)."""
+    return {
+        n: dict(p)
+        for n, p in effects.items()
+        if CANDIDATES[n].stage == "geometry"
+        and not CANDIDATES[n].stochastic
+        and not CANDIDATES[n].latent_grid
+    }
+
+
+def lookup_for(base: Base, geometry: Mapping[str, Mapping[str, ParamValue]]) -> torch.Tensor:
+    """The response lookup (F, 3, 6) fitted on the fit split under ``geometry``: cached."""
+    if base.lookup_fit is None:
+        raise TactileBenchError(
+            "optical_response: no fitted lookup (the fit split's pairs were not given)"
+        )
+    key = json.dumps(
+        {n: {k: float(v) for k, v in sorted(p.items())} for n, p in sorted(geometry.items())}
+    )
+    if key not in base.lookup_cache:
+        depth, target = base.lookup_fit
+        if geometry:
+            flat = Base(
+                depth, torch.zeros_like(target), base.background, base.measured, gel_mm=base.gel_mm
+            )
+            height, _ = _geometry(flat, geometry, None, base.context(False), shade=False)
+        else:
+            height = depth
+        with torch.no_grad():
+            try:
+                table = torch.as_tensor(fit_response(height, target, base.gel_mm))
+            except ValueError:  # no contact in the fit split: the lookup predicts no change
+                n_cols = response_design(height[:1, :, :2, :2], base.gel_mm).shape[-1]
+                table = torch.zeros(n_cols // 6, 3, 6)
+        base.lookup_cache[key] = table.float()
+    return base.lookup_cache[key]
+
+
 _SPECIAL: dict[str, Any] = {
     # the codec rounds quality to a whole number and its tables change at every step: the
     # gap drops sharply only at the exact value, so every whole value is tried
     "jpeg": lambda e: Candidate(e, note="quality searched value by value", integer=("quality",)),
     "shear_smear": lambda e: LatentSmear(e, note="slip direction chosen per pair (latent)"),
     "gel_wear": MeasuredWear,
+    "optical_response": lambda e: FittedResponse(e, note="lookup fitted from the fit split"),
     "surface_texture": lambda e: ContactTexture(
         e, note="beads along image axes (no contact yaw)", fixed={"bead_angle_deg": 0.0}
     ),
@@ -378,8 +486,9 @@ def get_candidate(name: str) -> Candidate:
 def bake_geometry(base: Base, effects: Mapping[str, Mapping[str, ParamValue]]) -> Base:
     """``base`` with (deterministic) geometry ``effects`` applied: a new depth and colour
     change, so later stages can be fitted without re-rendering the geometry every step."""
-    height, delta = _geometry(base, effects, None, EffectContext(GEL.width_mm, GEL.height_mm))
-    return Base(height, delta, base.background, base.measured)
+    height, delta = _geometry(base, effects, None, base.context())
+    baked = {**base.baked, **_deterministic_geometry(effects)}
+    return replace(base, depth=height, delta=delta, _shading={}, baked=baked)
 
 
 def _geometry(
@@ -387,8 +496,10 @@ def _geometry(
     effects: Mapping[str, Mapping[str, ParamValue]],
     generator: torch.Generator | None,
     ctx: EffectContext,
+    shade: bool = True,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(height, delta) after the geometry effects among ``effects``, in catalogue order."""
+    """(height, delta) after the geometry effects among ``effects``, in catalogue order
+    (``shade=False``: the height only; delta is returned unchanged)."""
     names = [n for n in EFFECT_ORDER if n in effects and CANDIDATES[n].stage == "geometry"]
     if not names:
         return base.depth, base.delta
@@ -398,7 +509,10 @@ def _geometry(
         h = CANDIDATES[n].apply(h, effects[n], generator, ctx, base)
     height = h.clamp(min=0.0)
     height = F.avg_pool2d(height, factor) if factor > 1 else height
-    return height, base.delta + sim_shading(height, base.background) - base.shading(factor)
+    if not shade:
+        return height, base.delta
+    shading = sim_shading(height, base.background, base.gel_mm)
+    return height, base.delta + shading - base.shading(factor)
 
 
 def render(
@@ -411,7 +525,14 @@ def render(
     for name in effects:
         get_candidate(name).check(effects[name])
     names = [n for n in EFFECT_ORDER if n in effects]
-    ctx = EffectContext(GEL.width_mm, GEL.height_mm, stochastic)
+    ctx = base.context(stochastic)
+    if "optical_response" in effects:
+        base = replace(
+            base,
+            lookup=lookup_for(
+                base, {**base.baked, **_deterministic_geometry({n: effects[n] for n in names})}
+            ),
+        )
     height, delta = _geometry(base, effects, generator, ctx)
     scene = new_scene(height, base.background, delta)
     for n in [n for n in names if CANDIDATES[n].stage == "optics"]:
@@ -427,10 +548,11 @@ def render(
 
 def render_background(base: Base, effects: Mapping[str, Mapping[str, ParamValue]]) -> torch.Tensor:
     """The candidate simulator's no-contact frame (3, S, S): zero depth, no per-frame noise."""
-    flat = Base(
-        torch.zeros(1, 1, base.size, base.size),
-        torch.zeros(1, 3, base.size, base.size),
-        base.background,
-        base.measured,
+    flat = replace(
+        base,
+        depth=torch.zeros(1, 1, base.size, base.size),
+        delta=torch.zeros(1, 3, base.size, base.size),
+        _shading={},
+        latent={},
     )
     return render(flat, effects, None, stochastic=False)[0]

@@ -149,7 +149,7 @@ def diagnose(
     held = data.subset(held_idx)
     held_where = None
     if effects:
-        after = which_mod.apply_effects(data, effects, idx=held_idx, seed=seed)
+        after = which_mod.apply_effects(data, effects, held_idx, seed, fit_idx)
         held_after = PairedData(
             held.depth, after, held.real, held.background, None, held.labels, held.names
         )
@@ -158,7 +158,7 @@ def diagnose(
     sample_images = {
         "sim": data.sim[samples_idx],
         "real": data.real[samples_idx],
-        "after": which_mod.apply_effects(data, effects, idx=torch.tensor(samples_idx), seed=seed)
+        "after": which_mod.apply_effects(data, effects, torch.tensor(samples_idx), seed, fit_idx)
         if effects
         else data.sim[samples_idx],
     }

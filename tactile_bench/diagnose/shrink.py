@@ -103,12 +103,12 @@ def _downstream(
         return {"skipped": "no held-out pair has a class seen in the fit split"}
     y_fit = torch.tensor([index[c] for c in fit_labels])
     y_held = torch.tensor([index[held_labels[i]] for i in known])
-    base = make_base(data, fit_idx)
+    base = make_base(data, fit_idx, lookup_from=fit_idx)
     sim_bg = base.background[0]
     train_sets = {
         "plain_sim_accuracy": _foreground(data.sim[fit_idx], sim_bg),
         "sim_plus_effects_accuracy": _foreground(
-            apply_effects(data, effects, fit_idx, seed), render_background(base, effects)
+            apply_effects(data, effects, fit_idx, seed, fit_idx), render_background(base, effects)
         ),
         "real_accuracy": _foreground(data.real[fit_idx], data.background),
     }
@@ -168,7 +168,7 @@ def how_far(
     fit_idx = torch.as_tensor(fit_idx, dtype=torch.long)
     held_idx = torch.as_tensor(held_idx, dtype=torch.long)
     real, sim = data.real[held_idx].float(), data.sim[held_idx].float()
-    sim_fx = apply_effects(data, effects, held_idx, seed)
+    sim_fx = apply_effects(data, effects, held_idx, seed, fit_idx)
     out: dict[str, Any] = {
         "effects": {k: dict(v) for k, v in effects.items()},
         "pixel": {"before": ssim_mse(sim, real), "after": ssim_mse(sim_fx, real)},

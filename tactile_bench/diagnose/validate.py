@@ -151,7 +151,7 @@ def run_case(
         }
     real = data.real[held_idx]
     before = ssim_mse(data.sim[held_idx], real)
-    after = ssim_mse(apply_effects(data, result.selected_params, held_idx, seed), real)
+    after = ssim_mse(apply_effects(data, result.selected_params, held_idx, seed, fit_idx), real)
     top = result.ranking[0] if result.ranking else None
     runner_up = result.singles[1] if len(result.singles) > 1 else None
     row: dict[str, Any] = {

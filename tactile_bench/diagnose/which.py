@@ -26,7 +26,9 @@ from tactile_bench.diagnose.candidates import (
     DEFAULT_CANDIDATES,
     NOT_CANDIDATES,
     Base,
+    _deterministic_geometry,
     get_candidate,
+    lookup_for,
     make_base,
     render,
 )
@@ -79,6 +81,9 @@ class WhichResult:
     gap_after: float = math.nan  # held-out gap with the selected set (jointly refitted)
     gap_floor: float = 0.0  # part of gap_after the selected model leaves on its own draws
     selected_params: dict[str, dict[str, float]] = field(default_factory=dict)
+    # the optical-response lookup (F x 3 x 6, see sensor.response_fit) fitted on the fit
+    # split under the selected geometry, when optical_response is selected: the table
+    response_table: list | None = None
     candidates: list[str] = field(default_factory=list)
     not_candidates: dict[str, str] = field(default_factory=dict)  # left out, and why
 
@@ -132,7 +137,9 @@ def explain_gap(
     names = list(DEFAULT_CANDIDATES if candidates is None else candidates)
     for n in names:
         get_candidate(n)
-    base_fit, base_held = make_base(data, fit_idx), make_base(data, held_idx)
+    cache: dict[str, torch.Tensor] = {}  # fitted response lookups, shared by both splits
+    base_fit = make_base(data, fit_idx, lookup_from=fit_idx, lookup_cache=cache)
+    base_held = make_base(data, held_idx, lookup_from=fit_idx, lookup_cache=cache)
     base_fit.precompute(), base_held.precompute()  # once, before the fits take subsets
     target_fit, target_held = Target.of(data.real[fit_idx]), Target.of(data.real[held_idx])
     gap0 = model_gap(base_held, target_held, {}, seed)
@@ -188,6 +195,9 @@ def explain_gap(
         floor = float(model_gap(base_held, Target.of(pseudo), selected, seed).mean())
     floor = min(max(floor, 0.0), float(current.mean()))
     unexplained = (float(current.mean()) - floor) / (g0 - floor) if g0 > floor else 0.0
+    table = None
+    if "optical_response" in selected:
+        table = lookup_for(base_fit, _deterministic_geometry(selected)).round(decimals=3).tolist()
     return WhichResult(
         ranking=ranking,
         singles=singles,
@@ -198,6 +208,7 @@ def explain_gap(
         gap_after=float(current.mean()),
         gap_floor=floor,
         selected_params={k: dict(v) for k, v in selected.items()},
+        response_table=table,
         candidates=names,
         not_candidates={k: v for k, v in NOT_CANDIDATES.items() if k not in names},
     )
@@ -228,9 +239,14 @@ def apply_effects(
     effects: Mapping[str, Mapping[str, float]],
     idx: torch.Tensor | None = None,
     seed: int = 0,
+    fit_idx: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Sim images (N, 3, S, S), 0..255, of the pairs at ``idx`` with ``effects`` added
-    (parameters as ``EffectFit.params``; the rest neutral); seeded for stochastic effects."""
-    base = make_base(data, None if idx is None else torch.as_tensor(idx, dtype=torch.long))
+    (parameters as ``EffectFit.params``; the rest neutral); seeded for stochastic effects.
+    ``fit_idx``: the fit split, which ``optical_response``'s lookup is fitted on."""
+    fit = None if fit_idx is None else torch.as_tensor(fit_idx, dtype=torch.long)
+    base = make_base(
+        data, None if idx is None else torch.as_tensor(idx, dtype=torch.long), lookup_from=fit
+    )
     with torch.no_grad():
         return render(base, effects, torch.Generator().manual_seed(seed))
