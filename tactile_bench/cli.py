@@ -211,6 +211,10 @@ def _ground_on_presses(ns: argparse.Namespace) -> int:
         print(refit_module(), end="")
         return 0
     figure = Path(ns.figure) if ns.figure else None
+    if figure is not None and (figure.suffix.lower() != ".png" or figure.is_dir()):
+        raise TactileBenchError(f"--figure {figure}: must be a .png file path")
+    if figure is not None and figure.parent.exists() and not figure.parent.is_dir():
+        raise TactileBenchError(f"--figure {figure}: {figure.parent} is not a folder")
     report = ground_profile(ns.profile, figure=figure)
     if ns.json:
         print(json.dumps(report, indent=2))
@@ -321,7 +325,9 @@ def build_parser() -> argparse.ArgumentParser:
     ycb.set_defaults(func=_cmd_data)
 
     ground = sub.add_parser(
-        "ground", help="compare the surrogate with real DIGIT measurements (background, optics)"
+        "ground",
+        help="compare the surrogate with real measurements: a DIGIT's background and optics, "
+        "or (--profile) held-out real GelSight presses",
     )
     ground.add_argument("--real-dir", help="folder with the reference files (default: found)")
     ground.add_argument("--json", action="store_true", help="print every number as JSON")

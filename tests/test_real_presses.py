@@ -209,3 +209,15 @@ def test_real_presses_export_in_the_diagnosis_layout(tmp_path: Path) -> None:
     assert len(data) == 24 and data.real.shape == (24, 3, 32, 32)
     assert torch.equal(data.sim_background, data.background)
     assert float(data.depth.amax()) > 0.3  # mm: the ball sinks in, in micrometre PNGs
+
+
+@pytest.mark.parametrize("figure", ["{tmp}", "{tmp}/sheet.jpg", "{file}/x.png"])
+def test_a_figure_path_that_cannot_be_a_png_is_refused_before_any_work(
+    tmp_path: Path, capsys, figure: str
+) -> None:
+    (tmp_path / "f").write_text("a file")
+    path = figure.format(tmp=tmp_path, file=tmp_path / "f")
+    assert main(["ground", "--profile", "gelsight", "--figure", path]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--figure" in err[0]
+    assert list(tmp_path.iterdir()) == [tmp_path / "f"]
