@@ -165,3 +165,27 @@ def test_jpeg_quality_is_found_to_the_whole_value(bank) -> None:
     assert fitted == {"quality": 37.0}
     near = model_gap(base, target, {"jpeg": {"quality": 39.0}}).mean()
     assert model_gap(base, target, {"jpeg": fitted}).mean() < 0.5 * near
+
+
+def test_rivals_the_held_out_pairs_cannot_tell_apart_are_reported() -> None:
+    from tactile_bench.diagnose.which import EffectFit, _confusable, paired_difference_ci
+
+    gen = torch.Generator().manual_seed(0)
+    before = torch.full((60,), 10.0)
+    chosen = 5 + torch.rand(60, generator=gen)
+    twin = chosen + 0.2 * (torch.rand(60, generator=gen) - 0.5)  # as good, pair by pair
+    weaker = 8 + torch.rand(60, generator=gen)  # clearly worse on the same pairs
+    lo, hi = paired_difference_ci(before, chosen, weaker)
+    assert 0 < lo <= hi  # the weaker rival leaves more of the gap: the CI excludes 0
+    row = EffectFit("vignetting", {}, 10.0, float(chosen.mean()), 0.45, 0.4, 0.5)
+    options = {
+        "vignetting": ({}, chosen),
+        "gamma_white_balance": ({}, twin),
+        "defocus_blur": ({}, weaker),
+        "jpeg": ({}, torch.full((60,), 9.95)),  # below the selection threshold: not a rival
+    }
+    out = _confusable(row, chosen, before, options, threshold=0.2, seed=0)
+    assert out.confusable_with == ["gamma_white_balance"]
+    assert "no-contact frame" in out.separate_by or "more pairs" in out.separate_by
+    alone = _confusable(row, chosen, before, {"vignetting": ({}, chosen)}, 0.2, 0)
+    assert alone.confusable_with == [] and alone.separate_by == ""

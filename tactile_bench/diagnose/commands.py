@@ -36,6 +36,11 @@ def _summary_lines(report: dict[str, Any]) -> list[str]:
             f"[{fit['ci_low']:.3f}, {fit['ci_high']:.3f}]  gap {fit['gap_before']:.4g} -> "
             f"{fit['gap_after']:.4g}"
         )
+        if fit.get("confusable_with"):
+            lines.append(
+                f"    not told apart from: {', '.join(fit['confusable_with'])} "
+                f"(to separate them: {fit['separate_by']})"
+            )
     if not report["ranking"]:
         lines.append("  (no candidate effect shrinks the gap)")
     lines.append(f"unexplained share of the held-out gap: {report['unexplained']:.3f}")

@@ -162,6 +162,7 @@ def run_case(
         "candidates_removed": list(case.removed),
         "n_pairs": n,
         "selected": selected,
+        "confusable": {r.effect: r.confusable_with for r in result.ranking if r.confusable_with},
         "selected_shrink": [round(r.shrink, 4) for r in result.ranking],
         "top1": top.effect if top else None,
         "top1_ci": [round(top.ci_low, 4), round(top.ci_high, 4)] if top else None,

@@ -92,8 +92,10 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in rows:
+        confusable = r.get("confusable", {})
         selected = ", ".join(
-            f"{e} ({v:.3f})" for e, v in zip(r["selected"], r["selected_shrink"], strict=True)
+            f"{e} ({v:.3f}{' ~ ' + ' / '.join(confusable[e]) if confusable.get(e) else ''})"
+            for e, v in zip(r["selected"], r["selected_shrink"], strict=True)
         )
         ranks = ", ".join(f"{e} {k}" for e, k in r["rank_of_true"].items()) or "-"
         px = r["pixel"]
@@ -138,6 +140,9 @@ NOTES = (
     "structure + texture. For those cases the MSE column goes up while the gap goes down.",
     "- The shrink of an effect is measured on the held-out half only; its 95% CI resamples "
     "those pairs.",
+    "- `~ X` after a selected effect: a rival at the same round that the held-out pairs cannot "
+    "tell from it (the paired bootstrap 95% CI of the difference in their shrink reaches 0); "
+    "the diagnosis reports the set (`confusable_with`) instead of claiming the first.",
     "- `unexplained` subtracts, for stochastic effects, the gap the fitted model leaves on "
     "data drawn from itself (its own randomness cannot be explained away).",
     "- pose_error and press_error move or deepen the contact itself: paired images hold no "

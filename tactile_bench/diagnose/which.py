@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import torch
@@ -63,6 +63,10 @@ class EffectFit:
     shrink: float  # (gap_before - gap_after) / gap_before on the held-out split
     ci_low: float  # bootstrap 95% CI of shrink (resampling held-out pairs)
     ci_high: float
+    # rivals at the same round the held-out pairs cannot tell from this one: the paired
+    # bootstrap 95% CI of (rival's gap - this one's) / gap_before reaches 0
+    confusable_with: list[str] = field(default_factory=list)
+    separate_by: str = ""  # what measurement would tell them apart
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -111,6 +115,52 @@ def _row(
     b, a = float(before.mean()), float(after.mean())
     lo, hi = shrink_ci(before, after, seed)
     return EffectFit(name, params, b, a, (b - a) / b if b > 0 else 0.0, lo, hi)
+
+
+#: what tells two effects of these stages apart, when the pairs at hand cannot
+_SEPARATE_BY: dict[frozenset[str], str] = {
+    frozenset({"geometry", "optics"}): "presses of one shape at several depths: the gel's "
+    "geometry changes the contact's shape with depth, the optics only its colour",
+    frozenset({"geometry", "camera"}): "no-contact frames and flat presses: camera effects "
+    "act on them, gel geometry does not",
+    frozenset({"optics", "camera"}): "the no-contact frame and frames of a flat press: "
+    "camera effects change them, the contact's optics do not",
+}
+
+
+def paired_difference_ci(
+    before: torch.Tensor, a: torch.Tensor, b: torch.Tensor, seed: int = 0, n: int = BOOTSTRAP
+) -> tuple[float, float]:
+    """Bootstrap 95% CI of ``(sum(b) - sum(a)) / sum(before)`` over resampled pairs: how much
+    more of the gap ``a`` removes than ``b``, on the same held-out pairs."""
+    gen = torch.Generator().manual_seed(seed)
+    idx = torch.randint(0, len(before), (n, len(before)), generator=gen)
+    diff = (b[idx].sum(1) - a[idx].sum(1)) / before[idx].sum(1).clamp(min=1e-12)
+    lo, hi = torch.quantile(diff, torch.tensor([0.025, 0.975])).tolist()
+    return float(lo), float(hi)
+
+
+def _confusable(
+    row: EffectFit,
+    chosen: torch.Tensor,
+    before: torch.Tensor,
+    options: Mapping[str, tuple[dict[str, float], torch.Tensor]],
+    threshold: float,
+    seed: int,
+) -> EffectFit:
+    """``row`` with the rivals its held-out pairs cannot tell from it (see EffectFit)."""
+    rivals = []
+    for name, (_, after) in options.items():
+        if name == row.effect or float(before.mean() - after.mean()) < threshold:
+            continue
+        if paired_difference_ci(before, chosen, after, seed)[0] <= 0:
+            rivals.append(name)
+    if not rivals:
+        return row
+    stages = {get_candidate(row.effect).stage} | {get_candidate(r).stage for r in rivals}
+    hint = _SEPARATE_BY.get(frozenset(stages), "") if len(stages) == 2 else ""
+    hint = hint or "more pairs, or contacts of other shapes and depths"
+    return replace(row, confusable_with=rivals, separate_by=hint)
 
 
 def _check_split(data: PairedData, idx: torch.Tensor, what: str) -> torch.Tensor:
@@ -171,7 +221,7 @@ def explain_gap(
         row = _row(best, params, current, after, seed)
         if row.gap_before - row.gap_after < threshold or row.ci_low <= 0:
             break
-        ranking.append(row)
+        ranking.append(_confusable(row, after, current, options, threshold, seed))
         selected[best] = params
         current = after
         if float(current.mean()) < threshold:  # nothing left that could pass the threshold
