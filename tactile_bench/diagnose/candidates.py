@@ -3,9 +3,15 @@
 The candidate simulator starts from what paired data hold, never from a sensor profile:
 
 - the **base scene** of a pair is its sim image split into background and colour change:
-  ``background`` = ``data.sim_background`` when given (else ``data.background``: the sim
-  was then composited onto the measured frame), ``delta = sim - background``, height =
-  the pair's depth, unit gain; composited with no effect it is the sim image exactly;
+  ``delta = sim - data.sim_background`` (``data.background`` when the sim was composited
+  onto the measured frame), height = the pair's depth, unit gain, composited onto the
+  **measured** no-contact frame: the background correction, given by the data and reported
+  as the ranking's first line (``which``);
+- the measured frame already went through the real sensor, so a candidate never applies
+  an effect to it a second time: the sim's own frame is taken through the candidate's
+  optics and camera with and without the contact, and the **difference** (the contact's
+  change as that sensor sees it) is added to the measured frame; only per-frame camera
+  effects (noise) and the codec (``whole_frame``) then act on the whole composite;
 - **geometry** effects change the height (sub-pixel texture at 2x the image size,
   area-averaged back as a camera integrates), and their colour change is re-rendered
   *linearly*:
@@ -41,7 +47,9 @@ Left out or modelled differently, and why:
 - ``shear_smear``: the slip direction is random per contact, so it is a per-pair latent
   (the gap takes the best of 8 directions pair by pair); the length is the shared parameter.
 - ``jpeg``: quality is searched value by value (the codec rounds it, and the gap drops only
-  at the exact value).
+  at the exact value), at the sensor's native frame or at the stored size (``stored_size``).
+- ``unit_background`` moves and tints the no-contact frame only: the measured frame
+  replaces it, so it is the background line, not a candidate.
 - Geometry parameters are searched without gradients: their change reaches the image
   through the simulator's optics, a black box.
 """
@@ -59,7 +67,8 @@ import torch.nn.functional as F
 
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, Effect, EffectContext
-from tactile_bench.effects.base import ParamValue, gaussian_blur
+from tactile_bench.effects.base import ParamValue, gaussian_blur, per_sub_batch
+from tactile_bench.effects.camera import jpeg_approx
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec
@@ -72,6 +81,9 @@ LOOKUP_PAIRS = 64  # fit-split pairs the optical-response lookup is fitted on (t
 NOT_CANDIDATES: dict[str, str] = {
     "pose_error": "needs the contact pose and mesh, which paired images lack",
     "press_error": "needs the contact pose and mesh, which paired images lack",
+    # it changes the no-contact frame only, and candidates composite onto the measured one
+    "unit_background": "given by the data: the measured no-contact frame replaces the sim's "
+    "(the background line of the ranking)",
 }
 DEFAULT_CANDIDATES: tuple[str, ...] = tuple(n for n in EFFECT_ORDER if n not in NOT_CANDIDATES)
 
@@ -119,8 +131,8 @@ class Base:
     """The candidate simulator's starting point for some pairs (see the module docstring)."""
 
     depth: torch.Tensor  # (N, 1, S, S) mm
-    delta: torch.Tensor  # (N, 3, S, S) sim - background
-    background: torch.Tensor  # (1, 3, S, S) what the sim was composited onto
+    delta: torch.Tensor  # (N, 3, S, S) sim - the sim's no-contact frame
+    background: torch.Tensor  # (1, 3, S, S) the frame candidates composite onto
     measured: torch.Tensor  # (3, S, S) the real sensor's no-contact frame
     _shading: dict[int, torch.Tensor] = field(default_factory=dict, repr=False)
     latent: dict[str, torch.Tensor] = field(default_factory=dict)  # per-pair hidden values
@@ -131,6 +143,9 @@ class Base:
     lookup_cache: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
     baked: dict[str, Any] = field(default_factory=dict)  # geometry already in ``depth``
     lookup: torch.Tensor | None = None  # the lookup for the current render (set by render)
+    # (1, 3, S, S) the sim's own no-contact frame (the measured one when the sim was
+    # composited onto it): the reference ``gel_wear`` reads dust and scratches against
+    sim_background: torch.Tensor | None = None
 
     def context(self, stochastic: bool = True) -> EffectContext:
         """The effects' context for these pairs: their gel view."""
@@ -181,9 +196,13 @@ def make_base(
     idx: torch.Tensor | None = None,
     lookup_from: torch.Tensor | None = None,
     lookup_cache: dict[str, torch.Tensor] | None = None,
+    onto_measured: bool = True,
 ) -> Base:
     """The base scene of the pairs at ``idx`` (all by default).
 
+    The sim's colour change is composited onto the **measured** no-contact frame (the
+    background correction, given by the data); ``onto_measured=False`` keeps the sim's own
+    frame, so the base with no effect is the sim image itself (the gap before correction).
     ``lookup_from``: the fit split, whose real frames the ``optical_response`` lookup is
     fitted on (never the pairs it is scored on); without it that candidate cannot render.
     Bases of one diagnosis share ``lookup_cache`` so each lookup is fitted once.
@@ -195,16 +214,18 @@ def make_base(
         lookup_fit = (fit.depth.float(), fit.real.float() - fit.background.float()[None])
     if idx is not None:
         data = data.subset(idx)
-    bg = data.sim_background if data.sim_background is not None else data.background
-    bg = bg.float()[None]
+    sim_bg = data.sim_background if data.sim_background is not None else data.background
+    sim_bg = sim_bg.float()[None]
+    measured = data.background.float()
     return Base(
         data.depth.float(),
-        data.sim.float() - bg,
-        bg,
-        data.background.float(),
+        data.sim.float() - sim_bg,
+        measured[None] if onto_measured else sim_bg,
+        measured,
         gel_mm=tuple(data.gel_mm),
         lookup_fit=lookup_fit,
         lookup_cache=lookup_cache if lookup_cache is not None else {},
+        sim_background=sim_bg,
     )
 
 
@@ -239,8 +260,13 @@ class Candidate:
         note: str = "",
         fixed: Mapping[str, float] | None = None,
         integer: tuple[str, ...] = (),
+        whole_frame: bool | None = None,
     ) -> None:
         self.effect = effect
+        # a camera effect that acts on every frame as a whole (per-frame noise, a codec): a
+        # measured no-contact frame holds no draw of this frame's, so it is applied to the
+        # composite; every other effect reaches the image through the contact's change only
+        self.whole_frame = effect.stochastic if whole_frame is None else whole_frame
         self.fixed = dict(fixed or {})  # held values of skipped parameters (else neutral)
         skip = tuple(skip) + tuple(self.fixed)
         self.name = effect.name
@@ -321,7 +347,8 @@ class MeasuredWear(Candidate):
         strength = params.get("measured_wear", 0.0)
         if isinstance(strength, float | int) and strength == 0:
             return x
-        ratio = fine_scale(base.measured[None]) / fine_scale(base.background)
+        reference = base.sim_background if base.sim_background is not None else base.background
+        ratio = fine_scale(base.measured[None]) / fine_scale(reference)
         transmission = ratio.mean(1, keepdim=True).clamp(1e-3, 1.0)
         return x.replace(gain=x.gain * transmission ** torch.as_tensor(strength))
 
@@ -419,6 +446,30 @@ class FittedResponse(Candidate):
         return x.replace(delta=(1 - blend) * x.delta + blend * fitted)
 
 
+class StoredJpeg(Candidate):
+    """jpeg at the sensor's native frame (the effect) or at the size the frames are stored
+    at (``stored_size`` 1: a dataset that re-encodes its resized frames)."""
+
+    def __init__(self, effect: Effect, **kwargs: Any) -> None:
+        super().__init__(effect, **kwargs)
+        self.searched = self.searched + (Searched("stored_size", 0.0, 1.0, 0.0, False, True),)
+
+    def apply(
+        self,
+        x: Any,
+        params: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+        base: Base,
+    ) -> Any:
+        if float(params.get("stored_size", 0.0)) < 0.5:
+            return self.effect.apply(x, self.full_params(params), generator, ctx)
+        quality = float(self.full_params(params)["quality"])
+        if quality >= 100.0 or not len(x):
+            return x
+        return per_sub_batch(lambda c: jpeg_approx(c, quality, tuple(c.shape[-2:])), x, size=8)
+
+
 def _deterministic_geometry(effects: Mapping[str, Any]) -> dict[str, Any]:
     """The geometry effects of ``effects`` the lookup can be refitted under (no draws)."""
     return {
@@ -461,7 +512,9 @@ def lookup_for(base: Base, geometry: Mapping[str, Mapping[str, ParamValue]]) -> 
 _SPECIAL: dict[str, Any] = {
     # the codec rounds quality to a whole number and its tables change at every step: the
     # gap drops sharply only at the exact value, so every whole value is tried
-    "jpeg": lambda e: Candidate(e, note="quality searched value by value", integer=("quality",)),
+    "jpeg": lambda e: StoredJpeg(
+        e, note="quality searched value by value", integer=("quality",), whole_frame=True
+    ),
     "shear_smear": lambda e: LatentSmear(e, note="slip direction chosen per pair (latent)"),
     "gel_wear": MeasuredWear,
     "optical_response": lambda e: FittedResponse(e, note="lookup fitted from the fit split"),
@@ -534,16 +587,38 @@ def render(
             ),
         )
     height, delta = _geometry(base, effects, generator, ctx)
-    scene = new_scene(height, base.background, delta)
-    for n in [n for n in names if CANDIDATES[n].stage == "optics"]:
-        scene = CANDIDATES[n].apply(scene, effects[n], generator, ctx, base)
-    image = scene.composite()
-    if image.shape[0] != len(base):
-        image = image.expand(len(base), -1, -1, -1)
+    # the light the sim saw (its own no-contact frame) goes through the candidate sensor
+    # with and without the contact; the measured frame already went through the real one,
+    # so only the difference (the contact's change as the sensor sees it) is added to it
+    ref = base.sim_background if base.sim_background is not None else base.background
+    contact = _through_sensor(base, names, effects, new_scene(height, ref, delta), ctx)
+    if contact.shape[0] != len(base):
+        contact = contact.expand(len(base), -1, -1, -1)
+    flat_height = torch.zeros(1, 1, base.size, base.size)
+    flat = _through_sensor(base, names, effects, new_scene(flat_height, ref), ctx)
+    image = base.background + (contact - flat)
     for n in names:
-        if CANDIDATES[n].stage == "camera":
+        if CANDIDATES[n].whole_frame and CANDIDATES[n].stage == "camera":
             image = CANDIDATES[n].apply(image, effects[n], generator, ctx, base)
     return image.clamp(0.0, 255.0)
+
+
+def _through_sensor(
+    base: Base,
+    names: list[str],
+    effects: Mapping[str, Mapping[str, ParamValue]],
+    scene: Any,
+    ctx: EffectContext,
+) -> torch.Tensor:
+    """A scene through the optics and the camera effects that act on the light field
+    (all but the whole-frame ones), in catalogue order: deterministic, no draws."""
+    for n in [n for n in names if CANDIDATES[n].stage == "optics"]:
+        scene = CANDIDATES[n].apply(scene, effects[n], None, ctx, base)
+    image = scene.composite()
+    for n in names:
+        if CANDIDATES[n].stage == "camera" and not CANDIDATES[n].whole_frame:
+            image = CANDIDATES[n].apply(image, effects[n], None, ctx, base)
+    return image
 
 
 def render_background(base: Base, effects: Mapping[str, Mapping[str, ParamValue]]) -> torch.Tensor:

@@ -18,6 +18,26 @@ def _g(value: Any) -> str:
     return f"{value:.4g}"
 
 
+def _first_lines(report: dict[str, Any]) -> list[str]:
+    """The background correction and any confusable set: what a reader must see first."""
+    bg = report.get("background")
+    if bg:
+        lines = [
+            f"background: the measured no-contact frame in place of the sim's removes "
+            f"{bg['shrink']:.3f} [{bg['ci_low']:.3f}, {bg['ci_high']:.3f}] of the gap "
+            "(data, nothing fitted); effects are ranked on what is left"
+        ]
+    else:
+        lines = [f"background: {report.get('background_note') or 'no correction'}"]
+    for fit in report.get("ranking") or []:
+        if fit.get("confusable_with"):
+            lines.append(
+                f"confusable: {fit['effect']} ~ {', '.join(fit['confusable_with'])} "
+                "(the held-out pairs cannot tell them apart)"
+            )
+    return lines
+
+
 def _summary_lines(report: dict[str, Any]) -> list[str]:
     where = report["where"]
     lines = [
@@ -25,6 +45,7 @@ def _summary_lines(report: dict[str, Any]) -> list[str]:
         f"{report['split']['n_held']} held-out) in {report['timing_s']['total']:.1f} s; "
         f"mean squared error real - sim {where['mse']:.2f}"
     ]
+    lines += _first_lines(report)
     lines.append("where the gap lies (top part of each axis, share of the squared error):")
     for row in where["dominant"]:
         extra = f", intensity {row['intensity']:.2f}" if row.get("intensity") is not None else ""

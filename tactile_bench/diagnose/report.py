@@ -294,7 +294,12 @@ def render_html(report: Mapping[str, Any], figures: Mapping[str, str]) -> str:
         f"<h2>2. Which effect causes it</h2><p>gap measure: {_fmt(report.get('gap_metric'))}</p>"
     )
     cols = ["effect", "params", "gap_before", "gap_after", "shrink", "ci_low", "ci_high"]
-    parts.append("<h3>selected (greedy forward selection)</h3>" + _table(report["ranking"], cols))
+    first = [report["background"]] if report.get("background") else []
+    parts.append(
+        f"<p>background: {_fmt(report.get('background_note'))}</p>"
+        "<h3>selected (first line: the measured background; then greedy forward selection on "
+        "what it leaves)</h3>" + _table(first + list(report["ranking"]), cols)
+    )
     parts.append(f"<p>unexplained share of the held-out gap: {_fmt(report.get('unexplained'))}</p>")
     parts.append(
         "<h3>every candidate alone</h3>" + _table(report["singles"], cols) + img("shrinks")

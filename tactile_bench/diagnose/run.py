@@ -182,6 +182,8 @@ def diagnose(
         if held_where is None
         else {"before": held_where[0].summary, "after": held_where[1].summary},
         "gap_metric": which_dict.get("gap_metric", getattr(which, "gap_metric", None)),
+        "background": which_dict.get("background"),
+        "background_note": which_dict.get("background_note", ""),
         "ranking": [f.to_dict() for f in which.ranking],
         "singles": [f.to_dict() for f in which.singles],
         "unexplained": which.unexplained,
@@ -189,7 +191,16 @@ def diagnose(
         "which": {  # anything else the "which" step reports
             k: v
             for k, v in which_dict.items()
-            if k not in ("ranking", "singles", "unexplained", "residual_flagged", "gap_metric")
+            if k
+            not in (
+                "ranking",
+                "singles",
+                "unexplained",
+                "residual_flagged",
+                "gap_metric",
+                "background",
+                "background_note",
+            )
         },
         "how_far": far,
         "downstream": far.get("downstream"),

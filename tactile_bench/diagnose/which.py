@@ -90,11 +90,18 @@ class WhichResult:
     response_table: list | None = None
     candidates: list[str] = field(default_factory=list)
     not_candidates: dict[str, str] = field(default_factory=dict)  # left out, and why
+    # the first line: the sim's own no-contact frame replaced by the measured one (given by
+    # the data, nothing fitted); its shrink is its share of the plain sim's gap. None when
+    # the sim was composited onto the measured frame (``background_note`` says so). The
+    # ranking, ``gap_before`` and ``unexplained`` are on the gap left after it.
+    background: EffectFit | None = None
+    background_note: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["ranking"] = [r.to_dict() for r in self.ranking]
         d["singles"] = [r.to_dict() for r in self.singles]
+        d["background"] = self.background.to_dict() if self.background else None
         return d
 
 
@@ -194,6 +201,7 @@ def explain_gap(
     target_fit, target_held = Target.of(data.real[fit_idx]), Target.of(data.real[held_idx])
     gap0 = model_gap(base_held, target_held, {}, seed)
     g0 = float(gap0.mean())
+    background, background_note = _background_line(data, held_idx, target_held, gap0, seed)
     threshold = MIN_SHARE * g0
 
     fits: dict[str, tuple[dict[str, float], torch.Tensor]] = {}
@@ -261,7 +269,28 @@ def explain_gap(
         response_table=table,
         candidates=names,
         not_candidates={k: v for k, v in NOT_CANDIDATES.items() if k not in names},
+        background=background,
+        background_note=background_note,
     )
+
+
+BACKGROUND_LINE = "measured_background"
+
+
+def _background_line(
+    data: PairedData, held_idx: torch.Tensor, target: Target, gap: torch.Tensor, seed: int
+) -> tuple[EffectFit | None, str]:
+    """The background correction's row (its share of the plain sim's held-out gap), or
+    None with the reason when there is nothing to correct."""
+    if data.sim_background is None:
+        return None, "the sim was composited onto the measured no-contact frame: no correction"
+    if torch.equal(data.sim_background.float(), data.background.float()):
+        return None, "the sim's no-contact frame is the measured one: no correction"
+    plain = make_base(data, held_idx, onto_measured=False)
+    before = model_gap(plain, target, {}, seed)
+    row = _row(BACKGROUND_LINE, {}, before, gap, seed)
+    note = "the sim's own no-contact frame replaced by the measured one (data, nothing fitted)"
+    return row, note
 
 
 def _worth_refitting(
