@@ -47,10 +47,10 @@ def test_planted_parameters_are_in_range_and_far_from_neutral(name: str) -> None
 def test_cases_cover_the_catalogue_and_withhold_effects() -> None:
     cases = make_cases(quick=False, seed=0)
     singles = [c.planted[0] for c in cases if c.kind == "single"]
-    assert singles == list(DEFAULT_CANDIDATES)
+    assert singles == [*DEFAULT_CANDIDATES, "unit_background"]
     assert sum(c.kind == "double" for c in cases) >= 4
     outs = [c for c in cases if c.kind == "out_of_catalogue"]
-    assert {c.planted[0] for c in outs} >= {"pose_error", "press_error"}
+    assert {c.planted[0] for c in outs} >= {"press_error"}
     for c in outs:  # the planted effect is never among the candidates
         assert c.planted[0] in c.removed or c.planted[0] not in DEFAULT_CANDIDATES
     assert any(c.removed for c in outs)
@@ -148,3 +148,33 @@ def test_cli_quick_validation_writes_json_and_markdown(tmp_path) -> None:
     report = json.loads((out / "validation.json").read_text())
     assert report["summary"]["n_single"] == 4 and len(report["cases"]) >= 6
     assert "top-1 identification" in (out / "validation.md").read_text()
+
+
+def test_foreign_suite_cases_span_shadings_variants_and_withheld_plants() -> None:
+    cases = make_cases(quick=False, seed=0, suites=("foreign",))
+    assert {c.suite for c in cases} == {"foreign"}
+    variants = {c.foreign[2] for c in cases}
+    assert variants == {"own", "composited"}
+    outs = [c for c in cases if c.kind == "out_of_catalogue"]
+    for c in outs:  # a plant whose catalogue name is no candidate must be flagged
+        assert c.planted[0] not in DEFAULT_CANDIDATES
+    assert {c.foreign[0] for c in outs} >= {"barrel", "chromatic"}
+    assert make_cases(quick=False, seed=0, suites=("foreign",))[3].params == cases[3].params
+
+
+def test_one_foreign_case_end_to_end(bank) -> None:
+    keep = ("vignetting", "led_diffusivity", "defocus_blur", "camera_noise")
+    case = Case(
+        "vignetting (lambert, own)",
+        "single",
+        ["vignetting"],
+        removed=tuple(c for c in DEFAULT_CANDIDATES if c not in keep),
+        params={"vignetting": {"corner_loss": 0.3}},
+        suite="foreign",
+        foreign=("vignetting", "lambert", "own"),
+    )
+    row = run_case(case, bank, n=24, seed=0, size=32, index=0)
+    assert row["suite"] == "foreign" and row["renderer"] == "foreign lambert"
+    assert row["background_share"] is not None and row["background_share"] > 0.5
+    assert row["expected"] == "vignetting" and row["passed"] == (row["top1"] == "vignetting")
+    assert row["fitted_vs_true"] == {}  # the foreign renderer names its own parameters

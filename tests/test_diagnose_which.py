@@ -36,12 +36,12 @@ def _pairs(bank, planted: dict, n: int = 24, seed: int = 3) -> PairedData:
     return planted_pairs(bank, planted, n, seed, SIZE)
 
 
-def test_candidate_set_leaves_out_pose_effects_with_a_reason() -> None:
-    assert "pose_error" not in DEFAULT_CANDIDATES and "press_error" not in DEFAULT_CANDIDATES
+def test_candidate_set_leaves_out_press_error_with_a_reason() -> None:
+    assert "press_error" not in DEFAULT_CANDIDATES and "pose_error" in DEFAULT_CANDIDATES
     assert "unit_background" not in DEFAULT_CANDIDATES  # the measured frame's line instead
-    assert len(DEFAULT_CANDIDATES) == 12
+    assert len(DEFAULT_CANDIDATES) == 13
     with pytest.raises(TactileBenchError, match="pose"):
-        get_candidate("pose_error")
+        get_candidate("press_error")
     with pytest.raises(TactileBenchError, match="measured no-contact frame"):
         get_candidate("unit_background")
 
@@ -165,7 +165,7 @@ def test_explain_gap_flags_a_cause_outside_the_candidates(bank) -> None:
 def test_explain_gap_rejects_bad_input(bank) -> None:
     data = _pairs(bank, {}, n=6)
     with pytest.raises(TactileBenchError, match="not a diagnosis candidate"):
-        explain_gap(data, torch.arange(3), torch.arange(3, 6), candidates=["pose_error"])
+        explain_gap(data, torch.arange(3), torch.arange(3, 6), candidates=["press_error"])
     with pytest.raises(TactileBenchError, match="held-out"):
         explain_gap(data, torch.arange(5), torch.tensor([5]))
 
@@ -223,3 +223,34 @@ def test_background_line_comes_first_and_only_when_the_frames_differ(bank) -> No
     composited = dataclasses.replace(data, sim_background=None)
     again = explain_gap(composited, idx[::2], idx[1::2], candidates=names, progress=False)
     assert again.background is None and "composited" in again.background_note
+
+
+def test_registration_finds_a_constant_misregistration(bank) -> None:
+    """pose_error: the real contacts sit 0.6 mm right of where the depth puts them."""
+    planted = {"pose_error": {"offset_x_mm": 0.6}}
+    data = _pairs(
+        bank,
+        {"pose_error": {**EFFECTS["pose_error"].neutral_params(), **planted["pose_error"]}},
+        n=16,
+    )
+    base = make_base(data)
+    shifted = render(base, {"pose_error": {"offset_x_mm": 0.6}})
+    zero = render(base, {"pose_error": {"offset_x_mm": 0.0}})
+    assert float((shifted - data.real).abs().mean()) < 0.5 * float((zero - data.real).abs().mean())
+    fitted = fit_candidate("pose_error", base, Target.of(data.real))
+    assert abs(fitted["offset_x_mm"] - 0.6) < 0.15 and abs(fitted["offset_y_mm"]) < 0.15
+
+
+def test_sim_optics_model_is_the_one_that_reproduces_the_users_sim(bank) -> None:
+    """Built-in optics for our own simulator's pairs, a fitted lookup for another's."""
+    from tactile_bench.diagnose.candidates import sim_optics_model
+    from tactile_bench.diagnose.foreign import foreign_pairs
+
+    ours = _pairs(bank, {}, n=16)
+    change = ours.sim - ours.sim_background
+    table, errors = sim_optics_model(ours.depth, change, ours.sim_background, (18.0, 24.0))
+    assert table.numel() == 0 and float(errors[0]) < float(errors[1])
+    theirs = foreign_pairs(bank, None, {}, 16, 3, SIZE, "lambert", "own")
+    change = theirs.sim - theirs.sim_background
+    table, errors = sim_optics_model(theirs.depth, change, theirs.sim_background, (18.0, 24.0))
+    assert table.numel() > 0 and float(errors[1]) < float(errors[0])

@@ -14,9 +14,11 @@ The candidate simulator starts from what paired data hold, never from a sensor p
   effects (noise) and the codec (``whole_frame``) then act on the whole composite;
 - **geometry** effects change the height (sub-pixel texture at 2x the image size,
   area-averaged back as a camera integrates), and their colour change is re-rendered
-  *linearly*:
-  ``delta + SimOptics(h') - SimOptics(h)`` (noise-free). Exact for the built-in simulator,
-  a first-order model for a user's own one;
+  *linearly*: ``delta + S(h') - S(h)``, with ``S`` **the user's sim optics**: the built-in
+  TACTO-like ``SimOptics`` (exact for the built-in simulator) or a lookup of colour change
+  against surface slope and position fitted to the fit split's (depth, sim) pairs
+  (``sensor.response_fit``), whichever reproduces held-in sim images better
+  (``sim_optics_model``; its error is reported: below it no effect can be told apart);
 - **optics** effects act on that scene, **camera** effects on its composite, as in
   ``SurrogateDigit``;
 - ``optical_response`` is a **lookup fitted from the pairs** (colour change against the
@@ -32,9 +34,12 @@ they are never left to it. Nothing here reads ``Param.default``.
 
 Left out or modelled differently, and why:
 
-- ``pose_error``, ``press_error`` (pose stage) move or deepen the contact itself: they need
-  the contact mesh and pose, which paired images lack. Not candidates; the diagnosis then
-  reports their gap as unexplained (``validate-diagnosis`` plants them to check that).
+- ``pose_error`` is fitted as a constant **misregistration** of the depth against the real
+  frames: the depth and the sim's colour change are warped together (a shift in mm and a
+  rotation about the view's centre, bilinear), so no optics model is needed. The random
+  part per contact (jitter) is not searched. ``press_error`` deepens the contact itself: it
+  needs the contact mesh and pose, which paired images lack; not a candidate, its gap is
+  reported as unexplained (``validate-diagnosis`` plants it to check that).
 - ``gel_wear``: dust and scratches sit where the unit's random draw (``unit_seed``) put
   them, which no parameter search can find. They also darken the measured no-contact frame,
   so the candidate reads them from the data: the fine-scale transmission
@@ -78,8 +83,8 @@ from tactile_bench.sensor.response_fit import fit_response, predict_delta, respo
 GEL = GelSpec()  # the view when paired data name none (gel.json): a DIGIT's 18 x 24 mm
 OVERSAMPLE = 2  # geometry effects act at this multiple of the image size
 LOOKUP_PAIRS = 64  # fit-split pairs the optical-response lookup is fitted on (the first)
+SIM_MODEL_KEY = "__sim_optics__"  # the lookup cache's entry for the user's sim optics
 NOT_CANDIDATES: dict[str, str] = {
-    "pose_error": "needs the contact pose and mesh, which paired images lack",
     "press_error": "needs the contact pose and mesh, which paired images lack",
     # it changes the no-contact frame only, and candidates composite onto the measured one
     "unit_background": "given by the data: the measured no-contact frame replaces the sim's "
@@ -146,6 +151,14 @@ class Base:
     # (1, 3, S, S) the sim's own no-contact frame (the measured one when the sim was
     # composited onto it): the reference ``gel_wear`` reads dust and scratches against
     sim_background: torch.Tensor | None = None
+    # the user's sim optics as a fitted lookup (F, 3, 6), None: the built-in SimOptics
+    sim_lookup: torch.Tensor | None = None
+
+    def sim_change(self, height: torch.Tensor) -> torch.Tensor:
+        """The sim's noise-free colour change of ``height`` by the user's sim optics."""
+        if self.sim_lookup is not None:
+            return predict_delta(height, self.sim_lookup, self.gel_mm)
+        return sim_shading(height, self.background, self.gel_mm)
 
     def context(self, stochastic: bool = True) -> EffectContext:
         """The effects' context for these pairs: their gel view."""
@@ -181,7 +194,7 @@ class Base:
         trip through ``factor`` x the size as the geometry effects take: cached."""
         if factor not in self._shading:
             height = F.avg_pool2d(self.depth_at(factor), factor) if factor > 1 else self.depth
-            self._shading[factor] = sim_shading(height, self.background, self.gel_mm)
+            self._shading[factor] = self.sim_change(height)
         return self._shading[factor]
 
     def precompute(self) -> Base:
@@ -208,10 +221,19 @@ def make_base(
     Bases of one diagnosis share ``lookup_cache`` so each lookup is fitted once.
     """
     lookup_fit = None
+    cache = lookup_cache if lookup_cache is not None else {}
+    sim_lookup = None
     if lookup_from is not None:
         # 22 x 6 coefficients a channel: LOOKUP_PAIRS contacts hold far more pixels than that
         fit = data.subset(torch.as_tensor(lookup_from, dtype=torch.long)[:LOOKUP_PAIRS])
         lookup_fit = (fit.depth.float(), fit.real.float() - fit.background.float()[None])
+        if SIM_MODEL_KEY not in cache:
+            fit_bg = fit.sim_background if fit.sim_background is not None else fit.background
+            delta = fit.sim.float() - fit_bg.float()[None]
+            cache[SIM_MODEL_KEY], cache[SIM_MODEL_KEY + "report"] = sim_optics_model(
+                fit.depth.float(), delta, fit_bg.float(), tuple(fit.gel_mm)
+            )
+        sim_lookup = cache[SIM_MODEL_KEY] if cache[SIM_MODEL_KEY].numel() else None
     if idx is not None:
         data = data.subset(idx)
     sim_bg = data.sim_background if data.sim_background is not None else data.background
@@ -224,9 +246,39 @@ def make_base(
         measured,
         gel_mm=tuple(data.gel_mm),
         lookup_fit=lookup_fit,
-        lookup_cache=lookup_cache if lookup_cache is not None else {},
+        lookup_cache=cache,
         sim_background=sim_bg,
+        sim_lookup=sim_lookup,
     )
+
+
+def sim_optics_model(
+    depth: torch.Tensor,
+    delta: torch.Tensor,
+    background: torch.Tensor,
+    gel_mm: tuple[float, float],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The user's sim optics from their (depth, sim colour change) pairs: a fitted lookup,
+    or the built-in ``SimOptics`` (an empty table) when that reproduces their sim better.
+
+    Chosen on the second half of the pairs with the lookup fitted on the first; returns
+    (table, [built-in MSE, lookup MSE] on that half: the floor of any geometry effect)."""
+    half = len(depth) // 2
+    if half < 1 or not bool((depth > 0).any()):
+        return torch.zeros(0), torch.tensor([math.nan, math.nan])
+    held_depth, held_delta = depth[half:], delta[half:]
+    shaded = sim_shading(held_depth, background, gel_mm)  # over the sim's frame: it clamps
+    builtin = float((shaded - held_delta).square().mean())
+    try:
+        table = torch.as_tensor(fit_response(depth[:half], delta[:half], gel_mm)).float()
+    except ValueError:  # no contact in the first half
+        return torch.zeros(0), torch.tensor([builtin, math.nan])
+    with torch.no_grad():
+        fitted = float((predict_delta(held_depth, table, gel_mm) - held_delta).square().mean())
+    errors = torch.tensor([builtin, fitted])
+    if fitted >= builtin:
+        return torch.zeros(0), errors
+    return torch.as_tensor(fit_response(depth, delta, gel_mm)).float(), errors
 
 
 def sim_shading(
@@ -446,6 +498,51 @@ class FittedResponse(Candidate):
         return x.replace(delta=(1 - blend) * x.delta + blend * fitted)
 
 
+class Registration(Candidate):
+    """pose_error as a constant misregistration (module docstring): acts on the ``Base``,
+    before the geometry, warping depth, colour change and cached shading alike."""
+
+    def __init__(self, effect: Effect) -> None:
+        super().__init__(
+            effect,
+            skip=("jitter_mm", "yaw_jitter_deg"),
+            note="constant shift and rotation of the depth against the real frames",
+        )
+        self.searched = tuple(replace(s, differentiable=True) for s in self.searched)
+        self.stochastic = False
+
+    def apply(
+        self,
+        x: Any,
+        params: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+        base: Base,
+    ) -> Any:
+        p = self.full_params(params)
+        if all(isinstance(v, float | int) and v == 0 for v in p.values()):
+            return x
+        half = torch.tensor([base.gel_mm[0] / 2, base.gel_mm[1] / 2])
+        yaw = torch.deg2rad(torch.as_tensor(p["yaw_offset_deg"], dtype=torch.float32))
+        cos, sin = torch.cos(yaw), torch.sin(yaw)
+        shift = torch.stack(
+            [torch.as_tensor(p["offset_x_mm"]), torch.as_tensor(p["offset_y_mm"])]
+        ).float()
+        # output point o (mm) samples the depth at R(-yaw) (o - shift), in [-1, 1] units
+        r_inv = torch.stack([torch.stack([cos, sin]), torch.stack([-sin, cos])])
+        a = r_inv * half[None, :] / half[:, None]
+        b = -(r_inv @ shift) / half
+        theta = torch.cat([a, b[:, None]], 1)[None]
+        grid = F.affine_grid(theta, [1, 1, base.size, base.size], align_corners=False)
+
+        def warp(t: torch.Tensor) -> torch.Tensor:
+            g = grid.expand(len(t), -1, -1, -1)
+            return F.grid_sample(t, g, mode="bilinear", padding_mode="border", align_corners=False)
+
+        shading = {k: warp(v) if k == 1 else v for k, v in x._shading.items() if k == 1}
+        return replace(x, depth=warp(x.depth), delta=warp(x.delta), _shading=shading)
+
+
 class StoredJpeg(Candidate):
     """jpeg at the sensor's native frame (the effect) or at the size the frames are stored
     at (``stored_size`` 1: a dataset that re-encodes its resized frames)."""
@@ -517,6 +614,7 @@ _SPECIAL: dict[str, Any] = {
     ),
     "shear_smear": lambda e: LatentSmear(e, note="slip direction chosen per pair (latent)"),
     "gel_wear": MeasuredWear,
+    "pose_error": Registration,
     "optical_response": lambda e: FittedResponse(e, note="lookup fitted from the fit split"),
     "surface_texture": lambda e: ContactTexture(
         e, note="beads along image axes (no contact yaw)", fixed={"bead_angle_deg": 0.0}
@@ -564,8 +662,7 @@ def _geometry(
     height = F.avg_pool2d(height, factor) if factor > 1 else height
     if not shade:
         return height, base.delta
-    shading = sim_shading(height, base.background, base.gel_mm)
-    return height, base.delta + shading - base.shading(factor)
+    return height, base.delta + base.sim_change(height) - base.shading(factor)
 
 
 def render(
@@ -586,6 +683,8 @@ def render(
                 base, {**base.baked, **_deterministic_geometry({n: effects[n] for n in names})}
             ),
         )
+    for n in [n for n in names if CANDIDATES[n].stage == "pose"]:
+        base = CANDIDATES[n].apply(base, effects[n], generator, ctx, base)
     height, delta = _geometry(base, effects, generator, ctx)
     # the light the sim saw (its own no-contact frame) goes through the candidate sensor
     # with and without the contact; the measured frame already went through the real one,

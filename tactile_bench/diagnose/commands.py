@@ -29,6 +29,12 @@ def _first_lines(report: dict[str, Any]) -> list[str]:
         ]
     else:
         lines = [f"background: {report.get('background_note') or 'no correction'}"]
+    optics = (report.get("which") or {}).get("sim_optics") or {}
+    if optics:
+        lines.append(
+            f"sim optics for geometry effects: {optics['model']} (MSE on held-in sim images: "
+            f"built-in {optics['builtin_mse']}, fitted lookup {optics['lookup_mse']})"
+        )
     for fit in report.get("ranking") or []:
         if fit.get("confusable_with"):
             lines.append(

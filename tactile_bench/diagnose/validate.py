@@ -5,13 +5,20 @@ surrogate: sim = ``SurrogateDigit(effects={})`` (no effect), real = the same con
 planted effect(s) at random parameters. The diagnosis (``which.explain_gap``) sees only a
 ``PairedData`` (depth, sim, real, the real unit's no-contact frame, the plain one) and must
 name the planted effect. Cases: every candidate alone; two-effect plants; and effects outside
-the candidate set (the pose effects, which paired data cannot model, and one candidate
+the candidate set (press_error, which paired data cannot model, and one candidate
 removed from the set while planted), whose residual must be flagged rather than blamed on a
 wrong effect. Writes ``validation.json`` (summary + one row per case) and ``validation.md``.
 
 Planting rule: every parameter of a planted effect is drawn independently, on a random side
 of its neutral value (where the range allows), at a uniform 25-100% of the distance from
 neutral to that bound; integer parameters are rounded, ``unit_seed`` is a random integer.
+
+The **foreign suite** (``--suite foreign``) plants effects with a renderer written apart
+from the catalogue (``diagnose.foreign``: other lights and shading law, or the real DIGIT's
+calibration and no-contact frame; its own implementation of each effect, camera effects on
+the no-contact frame too), in both background variants (the sim's own no-contact frame, or
+the sim composited onto the measured one). A plant whose catalogue name is not a candidate
+is an out-of-catalogue case: it must be flagged, not blamed.
 """
 
 from __future__ import annotations
@@ -27,9 +34,16 @@ import torch
 from tqdm.auto import tqdm
 
 from tactile_bench.diagnose.candidates import DEFAULT_CANDIDATES
+from tactile_bench.diagnose.foreign import (
+    FOREIGN_PLANTS,
+    SHADINGS,
+    VARIANTS,
+    foreign_pairs,
+    shared_real_available,
+)
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.diagnose.validate_report import summarise, write_report
-from tactile_bench.diagnose.which import apply_effects, explain_gap
+from tactile_bench.diagnose.which import BACKGROUND_LINE, apply_effects, explain_gap
 from tactile_bench.effects import EFFECTS
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.geometry.contacts import classifier_test_protocol
@@ -46,11 +60,15 @@ DOUBLES: tuple[tuple[str, str], ...] = (
 )
 # planted but not candidates: pose effects (left out by design) and one removed candidate
 OUT_OF_CATALOGUE: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("pose_error", ()),
     ("press_error", ()),
     ("shadows", ("shadows",)),
 )
 QUICK_SINGLES = ("optical_response", "vignetting", "camera_noise", "elastic_spread")
+# what the diagnosis names for a planted effect that is not itself a candidate
+SHOWN_AS = {"unit_background": BACKGROUND_LINE}  # the measured frame replaces the unit's
+OWN_SINGLES = (*DEFAULT_CANDIDATES, *SHOWN_AS)
+QUICK_FOREIGN = ("blur", "vignetting", "noise", "optics", "barrel")
+SUITES = ("own", "foreign")
 
 
 @dataclass
@@ -59,9 +77,11 @@ class Case:
 
     name: str
     kind: str  # "single", "double" or "out_of_catalogue"
-    planted: list[str]
+    planted: list[str]  # catalogue names (foreign suite: what the plant is in the catalogue)
     removed: tuple[str, ...] = ()
     params: dict[str, dict[str, float]] = field(default_factory=dict)
+    suite: str = "own"
+    foreign: tuple[str, str, str] | None = None  # (plant, shading, variant): foreign suite
 
 
 def draw_params(name: str, rng: np.random.Generator) -> dict[str, float]:
@@ -90,11 +110,43 @@ def _float32_in(value: float, low: float, high: float) -> float:
     return float(v)
 
 
-def make_cases(quick: bool, seed: int) -> list[Case]:
-    """The case list with drawn parameters (seeded)."""
-    singles = QUICK_SINGLES if quick else DEFAULT_CANDIDATES
+def make_cases(quick: bool, seed: int, suites: tuple[str, ...] = ("own",)) -> list[Case]:
+    """The case list of ``suites`` with drawn parameters (seeded)."""
+    cases = _own_cases(quick, seed) if "own" in suites else []
+    if "foreign" in suites:
+        cases += _foreign_cases(quick, seed)
+    return cases
+
+
+def _foreign_cases(quick: bool, seed: int) -> list[Case]:
+    """Every foreign plant under each shading and background variant (the real DIGIT's
+    shading only where ../shared/real is at hand)."""
+    shadings = [s for s in SHADINGS if s != "polycalib" or shared_real_available()]
+    plants = QUICK_FOREIGN if quick else tuple(FOREIGN_PLANTS)
+    cases = []
+    for shading in shadings:
+        for variant in VARIANTS:
+            for i, plant in enumerate(plants):
+                expected = FOREIGN_PLANTS[plant].expected
+                known = expected in DEFAULT_CANDIDATES or expected in SHOWN_AS
+                rng = np.random.default_rng([seed, SHADINGS.index(shading), i, 13])
+                cases.append(
+                    Case(
+                        f"{plant} ({shading}, {variant})",
+                        "single" if known else "out_of_catalogue",
+                        [expected or plant],
+                        params={plant: FOREIGN_PLANTS[plant].draw(rng)},
+                        suite="foreign",
+                        foreign=(plant, shading, variant),
+                    )
+                )
+    return cases
+
+
+def _own_cases(quick: bool, seed: int) -> list[Case]:
+    singles = QUICK_SINGLES if quick else OWN_SINGLES
     doubles = DOUBLES[:1] if quick else DOUBLES
-    outs = OUT_OF_CATALOGUE[:1] + OUT_OF_CATALOGUE[2:] if quick else OUT_OF_CATALOGUE
+    outs = OUT_OF_CATALOGUE[1:] if quick else OUT_OF_CATALOGUE
     cases = [Case(n, "single", [n]) for n in singles]
     cases += [Case(" + ".join(d), "double", list(d)) for d in doubles]
     cases += [
@@ -133,7 +185,11 @@ def run_case(
     """Plant, diagnose blind, and score one case."""
     start = time.perf_counter()
     data_seed = int(np.random.SeedSequence([seed, index, 1009]).generate_state(1)[0])
-    data = planted_pairs(bank, case.params, n, data_seed, size)
+    if case.foreign is None:
+        data = planted_pairs(bank, case.params, n, data_seed, size)
+    else:
+        plant, shading, variant = case.foreign
+        data = foreign_pairs(bank, plant, case.params[plant], n, data_seed, size, shading, variant)
     perm = torch.randperm(n, generator=torch.Generator().manual_seed(data_seed))
     fit_idx, held_idx = perm[: n // 2], perm[n // 2 :]
     candidates = [c for c in DEFAULT_CANDIDATES if c not in case.removed]
@@ -144,7 +200,7 @@ def run_case(
     in_set = [e for e in case.planted if e in candidates]
     fitted_vs_true: dict[str, dict[str, list[float | None]]] = {}
     singles = {r.effect: r for r in result.singles}
-    for e in in_set:
+    for e in in_set if case.foreign is None else ():  # foreign plants name their own params
         fitted = result.selected_params.get(e) or singles[e].params
         fitted_vs_true[e] = {
             k: [v, fitted.get(k)] for k, v in case.params[e].items() if k in fitted
@@ -152,10 +208,17 @@ def run_case(
     real = data.real[held_idx]
     before = ssim_mse(data.sim[held_idx], real)
     after = ssim_mse(apply_effects(data, result.selected_params, held_idx, seed, fit_idx), real)
-    top = result.ranking[0] if result.ranking else None
+    # ranked first: the first effect on what the background correction leaves; the
+    # background line itself when no effect is selected after it
+    top = result.ranking[0] if result.ranking else result.background
     runner_up = result.singles[1] if len(result.singles) > 1 else None
+    bg = result.background
     row: dict[str, Any] = {
         "case": case.name,
+        "suite": case.suite,
+        "renderer": "surrogate" if case.foreign is None else f"foreign {case.foreign[1]}",
+        "variant": "own" if case.foreign is None else case.foreign[2],
+        "background_share": round(bg.shrink, 4) if bg else None,
         "kind": case.kind,
         "planted": case.params,
         "planted_names": list(case.planted),
@@ -182,7 +245,8 @@ def run_case(
         "seconds": round(seconds, 1),
     }
     if case.kind == "single":
-        row["passed"] = row["top1"] == case.planted[0]
+        row["expected"] = SHOWN_AS.get(case.planted[0], case.planted[0])
+        row["passed"] = row["top1"] == row["expected"]
     elif case.kind == "double":
         row["passed"] = all(e in selected for e in case.planted)
     else:
@@ -199,16 +263,20 @@ def validate_diagnosis(
     size: int = 64,
     chars: tuple[str, ...] = CHARACTERS,
     progress: bool = True,
+    suites: tuple[str, ...] = ("own",),
 ) -> dict[str, Any]:
     """Run every case, write ``validation.json`` and ``validation.md`` into ``out``."""
     start = time.perf_counter()
     n = n_pairs or (120 if quick else 200)
     bank = build_bank(chars, BrailleSpec())
-    cases = make_cases(quick, seed)
+    cases = make_cases(quick, seed, suites)
     rows = []
     for i, case in enumerate(tqdm(cases, desc="validate-diagnosis", disable=not progress)):
         rows.append(run_case(case, bank, n, seed, size, i))
-    summary = summarise(rows)
+    summary = summarise([r for r in rows if r["suite"] == suites[0]])
+    summary["suites"] = {s: summarise([r for r in rows if r["suite"] == s]) for s in suites}
+    if "foreign" in suites and not shared_real_available():
+        summary["skipped"] = "foreign polycalib shading: ../shared/real is not at hand"
     summary.update(
         quick=quick, n_pairs=n, seed=seed, size=size, seconds=round(time.perf_counter() - start, 1)
     )
@@ -217,18 +285,26 @@ def validate_diagnosis(
 
 
 def _cmd(ns: argparse.Namespace) -> int:
+    suites = SUITES if ns.suite == "both" else (ns.suite,)
     report = validate_diagnosis(
-        Path(ns.out), ns.quick, ns.pairs, ns.seed, ns.size, progress=not ns.no_progress
+        Path(ns.out),
+        ns.quick,
+        ns.pairs,
+        ns.seed,
+        ns.size,
+        progress=not ns.no_progress,
+        suites=suites,
     )
-    s = report["summary"]
-    print(
-        f"top-1 identification {s['top1_hits']}/{s['n_single']} single plants"
-        f" ({100 * s['top1_accuracy']:.1f}%), mean rank of the true effect"
-        f" {s['mean_rank_of_true']:.2f}; two-effect plants both found"
-        f" {s['doubles_both_found']}/{s['n_double']}; out-of-catalogue flagged"
-        f" {s['out_flagged']}/{s['n_out']}, blamed with high confidence"
-        f" {s['out_blamed_high_confidence']}; {s['seconds']:.0f} s"
-    )
+    for name, s in report["summary"]["suites"].items():
+        print(
+            f"{name} suite: top-1 identification {s['top1_hits']}/{s['n_single']} single plants"
+            f" ({100 * s['top1_accuracy']:.1f}%), mean rank of the true effect"
+            f" {s['mean_rank_of_true']:.2f}; two-effect plants both found"
+            f" {s['doubles_both_found']}/{s['n_double']}; out-of-catalogue flagged"
+            f" {s['out_flagged']}/{s['n_out']}, blamed with high confidence"
+            f" {s['out_blamed_high_confidence']}"
+        )
+    print(f"{report['summary']['seconds']:.0f} s")
     print(f"wrote {Path(ns.out) / 'validation.json'} and validation.md")
     return 0
 
@@ -247,5 +323,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--size", type=int, default=64, help="image size")
+    p.add_argument(
+        "--suite",
+        choices=(*SUITES, "both"),
+        default="both",
+        help="own: the project's renderer; foreign: an independent renderer (default both)",
+    )
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd)

@@ -60,53 +60,29 @@ def _fmt_params(fitted_vs_true: dict[str, dict[str, list[Any]]]) -> str:
 
 def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     s = summary
+    suites = s.get("suites") or {"own": s}
     lines = [
         "# Gap diagnosis on withheld effects (`validate-diagnosis`)",
         "",
         f"{s['n_pairs']} braille pairs per case ({s['size']} x {s['size']}), half to fit, half "
         f"held out; seed {s['seed']}; {'quick' if s['quick'] else 'full'} run, "
-        f"{s['seconds']:.0f} s in all. Sim: the surrogate with no effect; real: the same "
-        "contacts with the planted effect(s) at random parameters (25-100% of the way from "
-        "neutral to a bound). The diagnosis sees only the paired data.",
+        f"{s['seconds']:.0f} s in all. The diagnosis sees only the paired data.",
         "",
-        "## Summary",
-        "",
-        f"- top-1 identification of single planted effects: **{s['top1_hits']}/{s['n_single']}"
-        f" ({100 * s['top1_accuracy']:.1f}%)** (target >= 90%: "
-        f"{'met' if s['targets']['top1_at_least_90pct'] else 'NOT met'})",
-        f"- mean rank of the true effect among all candidates fitted alone: "
-        f"{s['mean_rank_of_true']:.2f}",
-        f"- median held-out gap shrink, single plants: {s['median_shrink_single']:.3f}",
-        f"- two-effect plants with both effects found: {s['doubles_both_found']}/{s['n_double']}",
-        f"- out-of-catalogue plants with the residual flagged: {s['out_flagged']}/{s['n_out']};"
-        f" blamed on a wrong effect with high confidence: {s['out_blamed_high_confidence']} "
-        f"(target 0: {'met' if s['out_blamed_high_confidence'] == 0 else 'NOT met'})",
+        "- **own suite**: sim = the surrogate with no effect; real = the same contacts with the "
+        "planted effect(s) at random parameters (25-100% of the way from neutral to a bound).",
+        "- **foreign suite**: sim and real by a renderer written apart from the catalogue "
+        "(`tactile_bench/diagnose/foreign.py`: its own lights and shading law, or the real "
+        "DIGIT's calibration and no-contact frame; its own implementation of each effect, camera "
+        "effects on the no-contact frame too), with the sim's own no-contact frame (`own`) or "
+        "composited onto the measured one (`composited`).",
         "",
         f"Gap measure: {s['gap_metric']}. Rules: {s['rules']['selection']}; {s['rules']['flag']}.",
-        "",
-        "## Cases",
-        "",
-        "| case | kind | selected (shrink) | rank of true | gap before -> after | "
-        "unexplained | flagged | MSE before -> after | fitted vs true (true/fitted) | "
-        "passed | s |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    for r in rows:
-        confusable = r.get("confusable", {})
-        selected = ", ".join(
-            f"{e} ({v:.3f}{' ~ ' + ' / '.join(confusable[e]) if confusable.get(e) else ''})"
-            for e, v in zip(r["selected"], r["selected_shrink"], strict=True)
-        )
-        ranks = ", ".join(f"{e} {k}" for e, k in r["rank_of_true"].items()) or "-"
-        px = r["pixel"]
-        lines.append(
-            f"| {r['case']} | {r['kind']} | {selected or 'none'} | {ranks} | "
-            f"{r['gap_before']:.3g} -> {r['gap_after']:.3g} | {r['unexplained']:.3f} | "
-            f"{'yes' if r['residual_flagged'] else 'no'} | "
-            f"{px['before']['mse']:.2f} -> {px['after']['mse']:.2f} | "
-            f"{_fmt_params(r['fitted_vs_true']) or '-'} | {'yes' if r['passed'] else 'NO'} | "
-            f"{r['seconds']:.0f} |"
-        )
+    if s.get("skipped"):
+        lines += ["", f"Skipped: {s['skipped']}."]
+    for name, sub in suites.items():
+        lines += ["", f"## {name.capitalize()} suite", "", *_summary_lines(sub), ""]
+        lines += _case_table([r for r in rows if r.get("suite", "own") == name])
     lines += ["", "## What the diagnosis got wrong, and why", ""]
     lines += [_failure(r) for r in rows if not r["passed"]] or ["Every case passed."]
     confusable = [
@@ -118,6 +94,7 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         and r["passed"]
         and r["runner_up"]
         and r["runner_up"]["shrink"] >= CONFUSABLE_SHARE
+        and r["planted_names"][0] in r["single_shrink_of_true"]
     ]
     lines += [
         "",
@@ -133,6 +110,49 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _summary_lines(s: dict[str, Any]) -> list[str]:
+    return [
+        f"- top-1 identification of single planted effects: **{s['top1_hits']}/{s['n_single']}"
+        f" ({100 * s['top1_accuracy']:.1f}%)** (target >= 90%: "
+        f"{'met' if s['targets']['top1_at_least_90pct'] else 'NOT met'})",
+        f"- mean rank of the true effect among all candidates fitted alone: "
+        f"{s['mean_rank_of_true']:.2f}",
+        f"- median held-out gap shrink, single plants: {s['median_shrink_single']:.3f}",
+        f"- two-effect plants with both effects found: {s['doubles_both_found']}/{s['n_double']}",
+        f"- out-of-catalogue plants with the residual flagged: {s['out_flagged']}/{s['n_out']};"
+        f" blamed on a wrong effect with high confidence: {s['out_blamed_high_confidence']} "
+        f"(target 0: {'met' if s['out_blamed_high_confidence'] == 0 else 'NOT met'})",
+    ]
+
+
+def _case_table(rows: list[dict[str, Any]]) -> list[str]:
+    lines = [
+        "| case | kind | expected | background share | selected (shrink ~ confusable) | "
+        "rank of true | gap before -> after | unexplained | flagged | MSE before -> after | "
+        "fitted vs true (true/fitted) | passed | s |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        confusable = r.get("confusable", {})
+        selected = ", ".join(
+            f"{e} ({v:.3f}{' ~ ' + ' / '.join(confusable[e]) if confusable.get(e) else ''})"
+            for e, v in zip(r["selected"], r["selected_shrink"], strict=True)
+        )
+        ranks = ", ".join(f"{e} {k}" for e, k in r["rank_of_true"].items()) or "-"
+        px = r["pixel"]
+        share = r.get("background_share")
+        lines.append(
+            f"| {r['case']} | {r['kind']} | {r.get('expected', '-')} | "
+            f"{'-' if share is None else f'{share:.3f}'} | {selected or 'none'} | {ranks} | "
+            f"{r['gap_before']:.3g} -> {r['gap_after']:.3g} | {r['unexplained']:.3f} | "
+            f"{'yes' if r['residual_flagged'] else 'no'} | "
+            f"{px['before']['mse']:.2f} -> {px['after']['mse']:.2f} | "
+            f"{_fmt_params(r['fitted_vs_true']) or '-'} | {'yes' if r['passed'] else 'NO'} | "
+            f"{r['seconds']:.0f} |"
+        )
+    return lines
+
+
 CONFUSABLE_SHARE = 0.5
 NOTES = (
     "- Pixel MSE cannot see stochastic effects: adding the right camera noise to the sim "
@@ -145,9 +165,13 @@ NOTES = (
     "the diagnosis reports the set (`confusable_with`) instead of claiming the first.",
     "- `unexplained` subtracts, for stochastic effects, the gap the fitted model leaves on "
     "data drawn from itself (its own randomness cannot be explained away).",
-    "- pose_error and press_error move or deepen the contact itself: paired images hold no "
-    "contact pose or mesh, so they are not candidates; their gap must come out as an "
-    "unexplained, flagged residual.",
+    "- press_error deepens the contact itself: paired images hold no contact pose or mesh, so "
+    "it is not a candidate; its gap must come out as an unexplained, flagged residual. "
+    "pose_error is fitted as a constant misregistration; its random part per contact is not.",
+    "- background share: the part of the plain sim's gap the measured no-contact frame removes "
+    "(no parameter fitted); `-` when the sim was composited onto it. The ranking, gap and "
+    "unexplained share are on what it leaves; a plant that changes only the no-contact frame "
+    "(unit_background) is expected to be named by that line (`measured_background`).",
 )
 
 

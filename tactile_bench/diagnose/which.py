@@ -25,6 +25,7 @@ from tqdm.auto import tqdm
 from tactile_bench.diagnose.candidates import (
     DEFAULT_CANDIDATES,
     NOT_CANDIDATES,
+    SIM_MODEL_KEY,
     Base,
     _deterministic_geometry,
     get_candidate,
@@ -96,6 +97,9 @@ class WhichResult:
     # ranking, ``gap_before`` and ``unexplained`` are on the gap left after it.
     background: EffectFit | None = None
     background_note: str = ""
+    # the user's sim optics the geometry candidates re-render with (``sim_optics_model``):
+    # which model, and each model's MSE on held-in sim images (the floor of geometry fits)
+    sim_optics: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -132,6 +136,11 @@ _SEPARATE_BY: dict[frozenset[str], str] = {
     "act on them, gel geometry does not",
     frozenset({"optics", "camera"}): "the no-contact frame and frames of a flat press: "
     "camera effects change them, the contact's optics do not",
+    **{
+        frozenset({"pose", other}): "a press at a marked point of the gel: it measures the "
+        "depth's misregistration directly"
+        for other in ("geometry", "optics", "camera")
+    },
 }
 
 
@@ -271,7 +280,17 @@ def explain_gap(
         not_candidates={k: v for k, v in NOT_CANDIDATES.items() if k not in names},
         background=background,
         background_note=background_note,
+        sim_optics=_sim_optics_report(cache),
     )
+
+
+def _sim_optics_report(cache: Mapping[str, torch.Tensor]) -> dict[str, Any]:
+    builtin, fitted = cache[SIM_MODEL_KEY + "report"].tolist()
+    return {
+        "model": "fitted lookup" if cache[SIM_MODEL_KEY].numel() else "built-in SimOptics",
+        "builtin_mse": None if math.isnan(builtin) else round(builtin, 3),
+        "lookup_mse": None if math.isnan(fitted) else round(fitted, 3),
+    }
 
 
 BACKGROUND_LINE = "measured_background"
