@@ -261,3 +261,37 @@ def test_summary_lines_tolerate_any_how_far_fields() -> None:
     }
     text = "\n".join(_summary_lines(report))
     assert "mse 9 -> 4" in text and "real 0.9" in text and "no candidate" in text
+
+
+def test_first_lines_show_the_background_line_sim_optics_and_confusable_sets() -> None:
+    from tactile_bench.diagnose.commands import _summary_lines
+
+    where = {"mse": 3.0, "dominant": []}
+    fit = {"effect": "vignetting", "shrink": 0.6, "ci_low": 0.5, "ci_high": 0.7}
+    report = {
+        "n_pairs": 8,
+        "split": {"n_fit": 4, "n_held": 4},
+        "timing_s": {"total": 1.0},
+        "where": where,
+        "background": {"shrink": 0.42, "ci_low": 0.4, "ci_high": 0.44},
+        "which": {"sim_optics": {"model": "fitted lookup", "builtin_mse": 9.0, "lookup_mse": 1.0}},
+        "ranking": [
+            {
+                **fit,
+                "gap_before": 2.0,
+                "gap_after": 0.8,
+                "confusable_with": ["optical_response"],
+                "separate_by": "a flat press",
+            }
+        ],
+        "unexplained": 0.1,
+        "residual_flagged": False,
+    }
+    lines = _summary_lines(report)
+    assert lines[1].startswith("background:") and "0.420 [0.400, 0.440]" in lines[1]
+    assert lines[2].startswith("sim optics for geometry effects: fitted lookup")
+    assert lines[3] == (
+        "confusable: vignetting ~ optical_response (the held-out pairs cannot tell them apart)"
+    )
+    composited = {**report, "background": None, "background_note": "the sim was composited"}
+    assert _summary_lines(composited)[1] == "background: the sim was composited"
