@@ -36,12 +36,10 @@ def _pairs(bank, planted: dict, n: int = 24, seed: int = 3) -> PairedData:
     return planted_pairs(bank, planted, n, seed, SIZE)
 
 
-def test_candidate_set_leaves_out_press_error_with_a_reason() -> None:
-    assert "press_error" not in DEFAULT_CANDIDATES and "pose_error" in DEFAULT_CANDIDATES
+def test_candidate_set_is_the_catalogue_but_the_background_the_data_give() -> None:
+    assert "press_error" in DEFAULT_CANDIDATES and "pose_error" in DEFAULT_CANDIDATES
     assert "unit_background" not in DEFAULT_CANDIDATES  # the measured frame's line instead
-    assert len(DEFAULT_CANDIDATES) == 13
-    with pytest.raises(TactileBenchError, match="pose"):
-        get_candidate("press_error")
+    assert set(DEFAULT_CANDIDATES) == set(EFFECTS) - {"unit_background"}
     with pytest.raises(TactileBenchError, match="measured no-contact frame"):
         get_candidate("unit_background")
 
@@ -165,7 +163,7 @@ def test_explain_gap_flags_a_cause_outside_the_candidates(bank) -> None:
 def test_explain_gap_rejects_bad_input(bank) -> None:
     data = _pairs(bank, {}, n=6)
     with pytest.raises(TactileBenchError, match="not a diagnosis candidate"):
-        explain_gap(data, torch.arange(3), torch.arange(3, 6), candidates=["press_error"])
+        explain_gap(data, torch.arange(3), torch.arange(3, 6), candidates=["unit_background"])
     with pytest.raises(TactileBenchError, match="held-out"):
         explain_gap(data, torch.arange(5), torch.tensor([5]))
 
@@ -254,3 +252,17 @@ def test_sim_optics_model_is_the_one_that_reproduces_the_users_sim(bank) -> None
     change = theirs.sim - theirs.sim_background
     table, errors = sim_optics_model(theirs.depth, change, theirs.sim_background, (18.0, 24.0))
     assert table.numel() > 0 and float(errors[1]) < float(errors[0])
+
+
+def test_press_depth_finds_a_shallower_press(bank) -> None:
+    """press_error: real contacts pressed to 0.8 of the commanded depth."""
+    planted = {**EFFECTS["press_error"].neutral_params(), "depth_scale": 0.8}
+    data = _pairs(bank, {"press_error": planted}, n=16)
+    base = make_base(data)
+    fitted = fit_candidate("press_error", base, Target.of(data.real))
+    assert abs(fitted["depth_scale"] - 0.8) < 0.08 and abs(fitted["depth_offset_mm"]) < 0.05
+    gap = {
+        k: float(model_gap(base, Target.of(data.real), v).mean())
+        for k, v in {"plain": {}, "fitted": {"press_error": fitted}}.items()
+    }
+    assert gap["fitted"] < 0.3 * gap["plain"]

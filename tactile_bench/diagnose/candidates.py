@@ -37,13 +37,16 @@ Left out or modelled differently, and why:
 - ``pose_error`` is fitted as a constant **misregistration** of the depth against the real
   frames: the depth and the sim's colour change are warped together (a shift in mm and a
   rotation about the view's centre, bilinear), so no optics model is needed. The random
-  part per contact (jitter) is not searched. ``press_error`` deepens the contact itself: it
-  needs the contact mesh and pose, which paired images lack; not a candidate, its gap is
-  reported as unexplained (``validate-diagnosis`` plants it to check that).
+  part per contact (jitter) is not searched.
+- ``press_error`` is fitted as a **depth scale and offset** of each contact's peak
+  penetration: the contact's depth moves by ``(scale - 1) * peak + offset`` where it is
+  positive and is re-rendered with the user's sim optics. A deeper press would also widen
+  the contact where the depth is 0 (the object's height there is unknown): not modelled;
+  nor is the per-contact jitter.
 - ``gel_wear``: dust and scratches sit where the unit's random draw (``unit_seed``) put
   them, which no parameter search can find. They also darken the measured no-contact frame,
   so the candidate reads them from the data: the fine-scale transmission
-  ``fine(data.background) / fine(base background)`` (``fine(x) = x / blur(x)``),
+  ``fine(data.background) / fine(sim background)`` (``fine(x) = x / blur(x)``),
   raised to ``measured_wear`` in [0, 1]; only ``coating_wear`` (the worn centre's lost
   response, centred) is an effect parameter searched.
 - ``surface_texture``: the beads follow each contact's yaw, which paired data lack: they
@@ -85,7 +88,6 @@ OVERSAMPLE = 2  # geometry effects act at this multiple of the image size
 LOOKUP_PAIRS = 64  # fit-split pairs the optical-response lookup is fitted on (the first)
 SIM_MODEL_KEY = "__sim_optics__"  # the lookup cache's entry for the user's sim optics
 NOT_CANDIDATES: dict[str, str] = {
-    "press_error": "needs the contact pose and mesh, which paired images lack",
     # it changes the no-contact frame only, and candidates composite onto the measured one
     "unit_background": "given by the data: the measured no-contact frame replaces the sim's "
     "(the background line of the ranking)",
@@ -543,6 +545,38 @@ class Registration(Candidate):
         return replace(x, depth=warp(x.depth), delta=warp(x.delta), _shading=shading)
 
 
+class PressDepth(Candidate):
+    """press_error as a depth scale and offset of each contact (module docstring): acts on
+    the ``Base`` before the geometry; its colour change through the user's sim optics."""
+
+    def __init__(self, effect: Effect) -> None:
+        super().__init__(
+            effect,
+            skip=("depth_jitter_mm",),
+            note="each contact's depth scaled and offset about its peak (no widening)",
+        )
+        self.searched = tuple(replace(s, differentiable=False) for s in self.searched)
+        self.stochastic = False
+
+    def apply(
+        self,
+        x: Any,
+        params: Mapping[str, ParamValue],
+        generator: torch.Generator | None,
+        ctx: EffectContext,
+        base: Base,
+    ) -> Any:
+        p = self.full_params(params)
+        change = (float(p["depth_scale"]) - 1.0) * x.depth.amax((1, 2, 3), keepdim=True)
+        change = change + float(p["depth_offset_mm"])
+        if not bool(change.abs().gt(0).any()):
+            return x
+        depth = torch.where(x.depth > 0, (x.depth + change).clamp(min=0.0), x.depth)
+        shading = x.sim_change(depth)
+        delta = x.delta + shading - x.shading(1)
+        return replace(x, depth=depth, delta=delta, _shading={1: shading})
+
+
 class StoredJpeg(Candidate):
     """jpeg at the sensor's native frame (the effect) or at the size the frames are stored
     at (``stored_size`` 1: a dataset that re-encodes its resized frames)."""
@@ -615,6 +649,7 @@ _SPECIAL: dict[str, Any] = {
     "shear_smear": lambda e: LatentSmear(e, note="slip direction chosen per pair (latent)"),
     "gel_wear": MeasuredWear,
     "pose_error": Registration,
+    "press_error": PressDepth,
     "optical_response": lambda e: FittedResponse(e, note="lookup fitted from the fit split"),
     "surface_texture": lambda e: ContactTexture(
         e, note="beads along image axes (no contact yaw)", fixed={"bead_angle_deg": 0.0}

@@ -165,9 +165,9 @@ NOTES = (
     "the diagnosis reports the set (`confusable_with`) instead of claiming the first.",
     "- `unexplained` subtracts, for stochastic effects, the gap the fitted model leaves on "
     "data drawn from itself (its own randomness cannot be explained away).",
-    "- press_error deepens the contact itself: paired images hold no contact pose or mesh, so "
-    "it is not a candidate; its gap must come out as an unexplained, flagged residual. "
-    "pose_error is fitted as a constant misregistration; its random part per contact is not.",
+    "- pose_error is fitted as a constant misregistration and press_error as a depth scale "
+    "and offset; their random parts per contact are not fitted, so part of a planted "
+    "jitter stays unexplained.",
     "- background share: the part of the plain sim's gap the measured no-contact frame removes "
     "(no parameter fitted); `-` when the sim was composited onto it. The ranking, gap and "
     "unexplained share are on what it leaves; a plant that changes only the no-contact frame "
