@@ -266,3 +266,17 @@ def test_press_depth_finds_a_shallower_press(bank) -> None:
         for k, v in {"plain": {}, "fitted": {"press_error": fitted}}.items()
     }
     assert gap["fitted"] < 0.3 * gap["plain"]
+
+
+def test_registration_refits_jointly_with_geometry_effects(bank) -> None:
+    """Adam through the registration must not reach the sim optics' in-place kernels."""
+    from tactile_bench.diagnose.gapfit import fit_jointly
+
+    data = _pairs(bank, {}, n=8)
+    effects = {
+        "pose_error": {"offset_x_mm": 0.3, "offset_y_mm": 0.1, "yaw_offset_deg": 0.5},
+        "elastic_spread": {"sigma_mm": 0.5, "contact_scale": 0.4},
+        "press_error": {"depth_scale": 0.9, "depth_offset_mm": 0.0},
+    }
+    joint = fit_jointly(effects, make_base(data), Target.of(data.real))
+    assert set(joint) == set(effects) and joint["press_error"] == effects["press_error"]

@@ -542,7 +542,9 @@ class Registration(Candidate):
             return F.grid_sample(t, g, mode="bilinear", padding_mode="border", align_corners=False)
 
         shading = {k: warp(v) if k == 1 else v for k, v in x._shading.items() if k == 1}
-        return replace(x, depth=warp(x.depth), delta=warp(x.delta), _shading=shading)
+        # the fit's gradient flows through the colour change; the depth only feeds the sim
+        # optics of later geometry, whose kernels work in place (no gradient through them)
+        return replace(x, depth=warp(x.depth).detach(), delta=warp(x.delta), _shading=shading)
 
 
 class PressDepth(Candidate):
