@@ -502,7 +502,9 @@ class FittedResponse(Candidate):
 
 class Registration(Candidate):
     """pose_error as a constant misregistration (module docstring): acts on the ``Base``,
-    before the geometry, warping depth, colour change and cached shading alike."""
+    before the geometry, warping depth, colour change and cached shading alike. Offsets and
+    yaw are in image axes (x right, y down), so ``offset_y_mm`` and ``yaw_offset_deg`` have
+    the opposite sign of the pose effect's (whose y points up)."""
 
     def __init__(self, effect: Effect) -> None:
         super().__init__(

@@ -194,9 +194,12 @@ def _failure(r: dict[str, Any]) -> str:
         )
     elif any(s < MIN_SHARE for s in r["single_shrink_of_true"].values()):
         why.append(f"below the {MIN_SHARE:.0%} share an effect needs to be selected")
+    if not parts:
+        planted = [e for e in r["planted_names"] if e in r["selected"]]
+        parts = [f"{e} selected, not first" for e in planted] or ["planted effect not a candidate"]
     return (
         f"- **{r['case']}**: selected {', '.join(r['selected']) or 'nothing'}; "
-        f"{'; '.join(parts) or 'planted effect not a candidate'}"
+        f"{'; '.join(parts)}"
         f"{': ' + '; '.join(why) if why else ''}. Unexplained {r['unexplained']:.3f}."
     )
 
