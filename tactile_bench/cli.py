@@ -409,7 +409,15 @@ def main(args: list[str] | None = None) -> int:
 
         torch.set_num_threads(ns.threads)
     try:
-        return ns.func(ns)
+        code = ns.func(ns)
+        sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+        return code
+    except BrokenPipeError:
+        # the reader left early (``list effects | head``): not an error of ours. Point
+        # stdout at /dev/null so the interpreter's final flush does not raise again
+        # (the Python docs' recipe, "Note on SIGPIPE" in the signal module)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except TactileBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR

@@ -67,3 +67,18 @@ def test_ground_against_real_measurements(capsys: pytest.CaptureFixture[str]) ->
     out = capsys.readouterr().out
     assert "background (digit)" in out and "optical response" in out
     assert main(["ground", "--real-dir", "/nonexistent"]) == 2
+
+
+def test_a_reader_that_leaves_early_is_not_an_error() -> None:
+    """``list effects | head -1``: the pipe closes before the listing is written."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tactile_bench", "list", "effects"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.close()  # closed long before the process has imported anything
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0 and b"Traceback" not in err and b"BrokenPipe" not in err
