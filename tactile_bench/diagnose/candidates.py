@@ -156,11 +156,17 @@ class Base:
     # the user's sim optics as a fitted lookup (F, 3, 6), None: the built-in SimOptics
     sim_lookup: torch.Tensor | None = None
 
+    @property
+    def sim_frame(self) -> torch.Tensor:
+        """(1, 3, S, S) the light the sim saw with no contact: its own no-contact frame."""
+        return self.sim_background if self.sim_background is not None else self.background
+
     def sim_change(self, height: torch.Tensor) -> torch.Tensor:
-        """The sim's noise-free colour change of ``height`` by the user's sim optics."""
+        """The sim's noise-free colour change of ``height`` by the user's sim optics (the
+        built-in one over the sim's own frame, as the sim rendered it: it clamps)."""
         if self.sim_lookup is not None:
             return predict_delta(height, self.sim_lookup, self.gel_mm)
-        return sim_shading(height, self.background, self.gel_mm)
+        return sim_shading(height, self.sim_frame, self.gel_mm)
 
     def context(self, stochastic: bool = True) -> EffectContext:
         """The effects' context for these pairs: their gel view."""
@@ -401,8 +407,7 @@ class MeasuredWear(Candidate):
         strength = params.get("measured_wear", 0.0)
         if isinstance(strength, float | int) and strength == 0:
             return x
-        reference = base.sim_background if base.sim_background is not None else base.background
-        ratio = fine_scale(base.measured[None]) / fine_scale(reference)
+        ratio = fine_scale(base.measured[None]) / fine_scale(base.sim_frame)
         transmission = ratio.mean(1, keepdim=True).clamp(1e-3, 1.0)
         return x.replace(gain=x.gain * transmission ** torch.as_tensor(strength))
 
@@ -543,7 +548,7 @@ class Registration(Candidate):
             g = grid.expand(len(t), -1, -1, -1)
             return F.grid_sample(t, g, mode="bilinear", padding_mode="border", align_corners=False)
 
-        shading = {k: warp(v) if k == 1 else v for k, v in x._shading.items() if k == 1}
+        shading = {1: warp(x._shading[1])} if 1 in x._shading else {}
         # the fit's gradient flows through the colour change; the depth only feeds the sim
         # optics of later geometry, whose kernels work in place (no gradient through them)
         return replace(x, depth=warp(x.depth).detach(), delta=warp(x.delta), _shading=shading)
@@ -602,7 +607,9 @@ class StoredJpeg(Candidate):
         quality = float(self.full_params(params)["quality"])
         if quality >= 100.0 or not len(x):
             return x
-        return per_sub_batch(lambda c: jpeg_approx(c, quality, tuple(c.shape[-2:])), x, size=8)
+        return per_sub_batch(
+            lambda c: jpeg_approx(c, quality, tuple(c.shape[-2:])), x, size=self.effect.chunk
+        )
 
 
 def _deterministic_geometry(effects: Mapping[str, Any]) -> dict[str, Any]:
@@ -728,7 +735,7 @@ def render(
     # the light the sim saw (its own no-contact frame) goes through the candidate sensor
     # with and without the contact; the measured frame already went through the real one,
     # so only the difference (the contact's change as the sensor sees it) is added to it
-    ref = base.sim_background if base.sim_background is not None else base.background
+    ref = base.sim_frame
     contact = _through_sensor(base, names, effects, new_scene(height, ref, delta), ctx)
     if contact.shape[0] != len(base):
         contact = contact.expand(len(base), -1, -1, -1)
