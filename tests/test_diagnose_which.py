@@ -218,6 +218,8 @@ def test_background_line_comes_first_and_only_when_the_frames_differ(bank) -> No
     assert result.background is not None and result.background.effect == "measured_background"
     assert result.background.shrink > 0.9 and result.background.params == {}
     assert result.ranking == []  # nothing but the unit's frame differs
+    assert result.sim_optics["model"] == "built-in SimOptics"  # our own simulator's pairs
+    assert result.sim_optics["builtin_mse"] < result.sim_optics["lookup_mse"]
     composited = dataclasses.replace(data, sim_background=None)
     again = explain_gap(composited, idx[::2], idx[1::2], candidates=names, progress=False)
     assert again.background is None and "composited" in again.background_note

@@ -289,6 +289,18 @@ def sim_optics_model(
     return torch.as_tensor(fit_response(depth, delta, gel_mm)).float(), errors
 
 
+def sim_optics_report(base: Base) -> dict[str, Any]:
+    """Which sim optics ``base``'s geometry re-renders with, and both models' held-in MSE."""
+    if SIM_MODEL_KEY not in base.lookup_cache:
+        return {}
+    builtin, fitted = base.lookup_cache[SIM_MODEL_KEY + "report"].tolist()
+    return {
+        "model": "fitted lookup" if base.sim_lookup is not None else "built-in SimOptics",
+        "builtin_mse": None if math.isnan(builtin) else round(builtin, 3),
+        "lookup_mse": None if math.isnan(fitted) else round(fitted, 3),
+    }
+
+
 def sim_shading(
     height: torch.Tensor,
     background: torch.Tensor,

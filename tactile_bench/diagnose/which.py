@@ -25,13 +25,13 @@ from tqdm.auto import tqdm
 from tactile_bench.diagnose.candidates import (
     DEFAULT_CANDIDATES,
     NOT_CANDIDATES,
-    SIM_MODEL_KEY,
     Base,
     _deterministic_geometry,
     get_candidate,
     lookup_for,
     make_base,
     render,
+    sim_optics_report,
 )
 from tactile_bench.diagnose.gapfit import (
     GAP_METRIC,
@@ -280,17 +280,8 @@ def explain_gap(
         not_candidates={k: v for k, v in NOT_CANDIDATES.items() if k not in names},
         background=background,
         background_note=background_note,
-        sim_optics=_sim_optics_report(cache),
+        sim_optics=sim_optics_report(base_fit),
     )
-
-
-def _sim_optics_report(cache: Mapping[str, torch.Tensor]) -> dict[str, Any]:
-    builtin, fitted = cache[SIM_MODEL_KEY + "report"].tolist()
-    return {
-        "model": "fitted lookup" if cache[SIM_MODEL_KEY].numel() else "built-in SimOptics",
-        "builtin_mse": None if math.isnan(builtin) else round(builtin, 3),
-        "lookup_mse": None if math.isnan(fitted) else round(fitted, 3),
-    }
 
 
 BACKGROUND_LINE = "measured_background"
