@@ -14,10 +14,11 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from tactile_bench.allocator import keep_freed_memory
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.args import check_arguments, check_environment, output_locks
 
 EXIT_USER_ERROR = 2
 
@@ -159,11 +160,18 @@ def _cmd_ground(ns: argparse.Namespace) -> int:
     if ns.refit or ns.profile:
         return _ground_on_presses(ns)
 
+    from tactile_bench.sensor.grounding import BACKGROUND_FILE, POLYCALIB_FILE
+
     real_dir = Path(ns.real_dir) if ns.real_dir else default_real_dir()
     if real_dir is None or not real_dir.is_dir():
         raise TactileBenchError(
             f"{ns.real_dir or '../shared/real'}: no folder of real DIGIT measurements "
             "(digit_background_240x320.jpg, digit_polycalib.npz); pass --real-dir"
+        )
+    if not any((real_dir / name).is_file() for name in (BACKGROUND_FILE, POLYCALIB_FILE)):
+        # a table of "absent" on every line is no measurement: say what is missing
+        raise TactileBenchError(
+            f"{real_dir}: nothing to measure: neither {BACKGROUND_FILE} nor {POLYCALIB_FILE}"
         )
     report = grounding_report(real_dir)
     if ns.json:
@@ -263,9 +271,16 @@ def _cmd_real_translators(ns: argparse.Namespace) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one ``error:`` line (the usage stays in ``--help``)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USER_ERROR, f"error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser, with a subcommand per job."""
-    parser = argparse.ArgumentParser(
+    """The argument parser, with a subcommand per job (subparsers share its class)."""
+    parser = _Parser(
         prog="tactile_bench",
         description="Bridge the tactile sim-to-real gap: simulate, translate, classify, report.",
     )
@@ -404,12 +419,16 @@ def main(args: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help or a usage error: argparse already printed
         return int(exc.code or 0)
     _configure_logging(logging.DEBUG if ns.verbose else logging.INFO)
-    if ns.threads:
-        import torch
-
-        torch.set_num_threads(ns.threads)
     try:
-        code = ns.func(ns)
+        # every argument, output location and environment setting, before any work
+        check_arguments(ns)
+        check_environment()
+        if ns.threads is not None:
+            import torch
+
+            torch.set_num_threads(ns.threads)
+        with output_locks(ns):
+            code = ns.func(ns)
         sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
         return code
     except BrokenPipeError:

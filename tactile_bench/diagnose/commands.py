@@ -103,6 +103,11 @@ def _cmd_diagnose(ns: argparse.Namespace) -> int:
     check_candidates(ns.candidates)
     layout, base = detect_layout(ns.paired_dir)
     data = load_paired(ns.paired_dir, size=ns.size)
+    if bool((data.real == data.sim).all()):  # nothing to explain: say so, select nothing
+        raise TactileBenchError(
+            f"{ns.paired_dir}: the real images equal the sim images in all {len(data)} pairs: "
+            "there is no sim-to-real gap to diagnose"
+        )
     if ns.max_pairs is not None and len(data) > ns.max_pairs:
         keep, _ = stratified_split(data.labels, ns.max_pairs / len(data), ns.seed)
         data = data.subset(keep)

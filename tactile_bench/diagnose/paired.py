@@ -37,6 +37,9 @@ import torch
 from PIL import Image, UnidentifiedImageError
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL
+from tactile_bench.guard.images import MIN_SIDE, open_header
+from tactile_bench.guard.limits import check_memory
 
 #: labels written under another folder name (the number sign is awkward in shells and URLs)
 NAMED_LABEL_DIRS: dict[str, str] = {"#": "number_sign"}
@@ -47,6 +50,9 @@ LAYOUTS = ("paired", "tactile_diffusion")
 DIGIT_GEL_MM = (18.0, 24.0)  # what a folder without gel.json is taken to show
 GEL_FILE = "gel.json"
 MAX_GEL_MM = 500.0
+#: the deepest penetration a depth image may hold: a DIGIT's gel is about 2 mm thick, a
+#: GelSight's a few mm; 65 mm is a unit mistake (mm written where micrometres belong)
+MAX_PENETRATION_MM = 5.0
 
 
 @dataclass
@@ -121,19 +127,22 @@ def dir_to_label(name: str) -> str:
 
 # ----------------------------------------------------------------------------- reading
 def _open(path: Path) -> Image.Image:
-    """An image fully decoded (so a truncated file fails here, naming it)."""
+    """An image fully decoded (so a truncated file fails here, naming it), after its header
+    says it is small enough to be a frame (guard.images: no decompression bombs)."""
+    im = open_header(path)
     try:
-        im = Image.open(path)
         im.load()
         return im
-    except FileNotFoundError:
-        raise TactileBenchError(f"{path}: file not found") from None
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError, EOFError, zlib.error) as e:
         raise TactileBenchError(f"{path}: not a readable image ({e})") from None
 
 
 def _check_size(path: Path, im: Image.Image, size: tuple[int, int] | None) -> tuple[int, int]:
     w, h = im.size
+    if min(w, h) < MIN_SIDE:
+        raise TactileBenchError(
+            f"{path}: is {w} x {h}; a sensor frame here is at least {MIN_SIDE} x {MIN_SIDE}"
+        )
     if w != h:
         raise TactileBenchError(f"{path}: is {w} x {h}; images must be square (S x S)")
     if size is not None and (w, h) != size:
@@ -167,14 +176,22 @@ def read_depth(path: Path, size: tuple[int, int] | None = None) -> torch.Tensor:
     arr = np.asarray(im).astype(np.float32)
     if arr.min() < 0 or arr.max() > 65535:
         raise TactileBenchError(f"{path}: values outside 0..65535 micrometres")
+    if arr.max() > MAX_PENETRATION_MM * UM_PER_MM:
+        raise TactileBenchError(
+            f"{path}: a penetration of {arr.max() / UM_PER_MM:.3g} mm; a tactile sensor's gel "
+            f"is a few mm thick (at most {MAX_PENETRATION_MM:g} mm here): wrong unit?"
+        )
     return torch.from_numpy(arr / UM_PER_MM)[None]
 
 
 def _listing(folder: Path) -> dict[str, tuple[str, Path]]:
     """{relative key: (label, path)} of the PNGs in ``folder`` (one optional label level)."""
+    if folder.exists() and not folder.is_dir():
+        raise TactileBenchError(f"{folder}: is a file, not a folder")
     if not folder.is_dir():
         raise TactileBenchError(f"{folder}: folder not found")
     out: dict[str, tuple[str, Path]] = {}
+    seen: dict[tuple[str, str], Path] = {}  # (label, name ignoring case) -> first file
 
     def add(path: Path, label: str) -> None:
         if path.name.startswith("."):
@@ -183,6 +200,15 @@ def _listing(folder: Path) -> dict[str, tuple[str, Path]]:
             raise TactileBenchError(f"{path}: unexpected folder (one label level only)")
         if path.suffix.lower() != ".png":
             raise TactileBenchError(f"{path}: not a .png file (the paired layout holds PNGs)")
+        # two files that are one pair to a reader (X.PNG beside X.png; "#" as number_sign
+        # and %23) would be read twice: write_paired refuses them, so does the reader
+        ident = (label, path.stem.casefold())
+        if ident in seen:
+            raise TactileBenchError(
+                f"{path}: the same pair as {seen[ident]} (label {label!r}, name "
+                f"{path.stem!r}); remove one"
+            )
+        seen[ident] = path
         out[str(path.relative_to(folder))] = (label, path)
 
     for entry in sorted(folder.iterdir()):
@@ -197,6 +223,8 @@ def _listing(folder: Path) -> dict[str, tuple[str, Path]]:
 def detect_layout(root: str | os.PathLike) -> tuple[str, Path]:
     """("paired" | "tactile_diffusion", the folder that holds it) for ``root``."""
     root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise TactileBenchError(f"{root}: is a file; the paired data is a folder")
     if not root.is_dir():
         raise TactileBenchError(f"{root}: folder not found")
     if (root / "depth").is_dir():
@@ -229,7 +257,13 @@ def _load_layout(root: Path) -> PairedData:
                     f"{root / part / key}: unpaired (no {root / 'depth' / key})"
                 )
     first = next(iter(depth_files.values()))[1]
-    size = _check_size(first, _open(first), None)
+    with open_header(first) as im:
+        size = _check_size(first, im, None)
+    check_memory(  # from the first header, before decoding any pixel
+        str(root),
+        f"{len(depth_files)} pairs of {size[0]} x {size[1]} pixels",
+        float(len(depth_files)) * size[0] * size[1] * BYTES_PER_PAIR_PIXEL,
+    )
     depth, sim, real, labels, names = [], [], [], [], []
     for key, (label, path) in depth_files.items():
         depth.append(read_depth(path, size))

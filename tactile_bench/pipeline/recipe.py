@@ -23,10 +23,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.limits import check_seed
+from tactile_bench.guard.recipes import check_stage, check_trainer
+from tactile_bench.guard.safe_yaml import load_yaml_file, load_yaml_text
 from tactile_bench.pipeline.stages import STAGES, StageKind
 
 
@@ -97,7 +99,7 @@ def apply_overrides(doc: dict[str, Any], overrides: list[str], path: Path) -> di
         key, sep, raw = item.partition("=")
         if not sep or not key:
             raise TactileBenchError(f"--set {item!r}: expected KEY=VALUE")
-        value = yaml.safe_load(raw)
+        value = load_yaml_text(raw, f"--set {key}")
         head, *rest = key.split(".")
         if head in stages:
             target = stages[head].setdefault("config", {})
@@ -129,16 +131,8 @@ def _unshared(node: Any) -> Any:
 def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     """Read, override and validate a recipe; every error names the file and the key."""
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise TactileBenchError(f"{path}: recipe file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TactileBenchError(f"{path}: cannot read recipe ({exc})") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark is not None else ""
-        raise TactileBenchError(f"{path}:{where} not valid YAML") from None
+    # a regular file only, aliases bounded, a key written twice refused (guard.safe_yaml)
+    raw = load_yaml_file(path, "recipe")
     if not isinstance(raw, dict):
         raise TactileBenchError(f"{path}: a recipe is a mapping with 'name' and 'stages'")
     raw = apply_overrides(_unshared(raw), overrides or [], path)
@@ -149,6 +143,8 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     except TypeError as exc:
         raise TactileBenchError(f"{path}: {exc}") from None
 
+    check_seed(f"{path}: seed", doc.seed)
+    check_trainer(doc.trainer, str(path))
     run_dir = Path(doc.run_dir) if doc.run_dir else Path("runs") / doc.name
     recipe = Recipe(path, doc.name, doc.seed, run_dir, doc.trainer, [], doc.description)
     seen: set[str] = set()
@@ -193,6 +189,7 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
             kind.check(config, path.parent)
         except TactileBenchError as exc:
             raise TactileBenchError(f"{where}.config.{exc}") from None
+        check_stage(kind.name, config, f"{where}.config")  # guard.recipes: bounds, duplicates
         recipe.stages.append(Stage(stage_doc.name, kind, config, inputs))
         seen.add(stage_doc.name)
     return recipe

@@ -19,6 +19,7 @@ from typing import Any
 
 import tactile_bench
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.outputs import OutputLock, check_output_dir
 from tactile_bench.hardware import resolve_precision, trainer_device
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
 from tactile_bench.pipeline.provenance import InputHasher, run_record
@@ -150,6 +151,13 @@ def run_recipe(
     """
     for name in force:
         recipe.stage(name)  # unknown names fail before any work
+    check_output_dir(recipe.run_dir, "run dir")
+    # a second run on this run dir would do the same work and overwrite the first's files
+    with OutputLock(recipe.run_dir, "run dir"):
+        return _run_locked(recipe, force, progress)
+
+
+def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[StageResult]:
     recipe.run_dir.mkdir(parents=True, exist_ok=True)
     hasher = InputHasher(recipe.run_dir, recipe.path.parent)
     results: dict[str, StageResult] = {}

@@ -33,13 +33,13 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-import yaml
 
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, get_effect
 from tactile_bench.effects.base import EffectContext, ParamValue, area_pool, replay_draws
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
+from tactile_bench.guard.safe_yaml import load_yaml_file
 from tactile_bench.sensor.background import GEL_MM, UNITS, digit_background
 from tactile_bench.sensor.depth import GelSpec, render_height
 from tactile_bench.sensor.heightfield import HeightFieldBank
@@ -122,12 +122,7 @@ class SurrogateDigit:
             raise TactileBenchError(
                 f"{path}: no such surrogate profile; built-in: {available_profiles()}"
             )
-        try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, UnicodeDecodeError) as err:
-            raise TactileBenchError(f"{path}: cannot read profile ({err})") from None
-        except yaml.YAMLError as err:
-            raise TactileBenchError(f"{path}: not valid YAML: {err}".splitlines()[0]) from None
+        data = load_yaml_file(path, "profile")  # regular file, bounded aliases, no dup keys
         if not isinstance(data, Mapping):
             raise TactileBenchError(f"{path}: must be a mapping with keys {sorted(_PROFILE_KEYS)}")
         extra = set(data) - _PROFILE_KEYS

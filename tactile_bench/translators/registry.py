@@ -33,10 +33,11 @@ class TranslatorEntry:
         """Import the class; a broken or non-Translator plugin is a one-line error."""
         try:
             obj = EntryPoint(name=self.name, value=self.target, group=GROUP).load()
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:  # a plugin calling sys.exit() on import too
+            reason = f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
             raise TactileBenchError(
                 f"translator plugin {self.name!r} ({self.target}, from {self.distribution}) "
-                f"failed to import: {type(exc).__name__}: {exc}"
+                f"failed to import: {reason}"
             ) from None
         if not (isinstance(obj, type) and issubclass(obj, Translator)):
             raise TactileBenchError(

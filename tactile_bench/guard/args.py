@@ -1,0 +1,250 @@
+"""Rules for every command's arguments, checked after parsing and before any work.
+
+Each numeric argument is checked by its name (``dest``), whatever command it belongs to:
+a new command's ``--seed`` or ``--size`` is covered the day it is added, and a test fails
+when an argument has no rule. :data:`OUTPUTS` declares each command's output arguments
+(folder or file, which suffixes, locked or not); :data:`ESTIMATES` each command's memory
+and disk estimate from its sizes and counts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.limits import (
+    check_disk,
+    check_int,
+    check_memory,
+    check_seed,
+    check_unique,
+)
+from tactile_bench.guard.outputs import OutputLock, check_output_dir, check_output_file
+
+#: the largest count any argument takes (pairs, steps, images, repetitions)
+MAX_COUNT = 10_000_000
+#: image sides: the models' smallest, and the largest frame a reader decodes
+MIN_SIZE, MAX_SIZE = 16, 4096
+#: bytes a (depth, sim, real) pair of S x S pixels takes per pixel: stored (float32 depth,
+#: uint8 images) plus the float copies the diagnosis and its fits hold
+BYTES_PER_PAIR_PIXEL = 4 + 3 + 3 + 4 * 7
+#: bytes per pixel a pair takes on disk (16-bit depth, two RGB PNGs, before compression)
+DISK_PER_PAIR_PIXEL = 2 + 3 + 3
+
+
+def flag(dest: str) -> str:
+    """``--max-pairs`` for ``max_pairs``."""
+    return "--" + dest.replace("_", "-")
+
+
+@dataclass(frozen=True)
+class Count:
+    """A whole number in ``[low, high]``; 0 is never a stand-in for "the default"."""
+
+    low: int = 1
+    high: int = MAX_COUNT
+
+    def __call__(self, dest: str, value: object) -> None:
+        check_int(flag(dest), value, self.low, self.high)
+
+
+@dataclass(frozen=True)
+class Seed:
+    """A seed: 0 .. 2**32 - 1."""
+
+    def __call__(self, dest: str, value: object) -> None:
+        check_seed(flag(dest), value)
+
+
+@dataclass(frozen=True)
+class Real:
+    """A finite number in ``low < x < high`` (``closed_high``: ``x <= high``)."""
+
+    low: float
+    high: float
+    closed_high: bool = False
+    unit: str = ""
+
+    def __call__(self, dest: str, value: object) -> None:
+        x = float(value)  # type: ignore[arg-type]
+        above = x > self.high if self.closed_high else x >= self.high
+        if not math.isfinite(x) or x <= self.low or above:
+            bracket = "]" if self.closed_high else ")"
+            raise TactileBenchError(
+                f"{flag(dest)}: must be in ({self.low:g}, {self.high:g}{bracket}"
+                f"{' ' + self.unit if self.unit else ''}, got {value}"
+            )
+
+
+@dataclass(frozen=True)
+class Names:
+    """A list of names (or a string of characters): no duplicates; ``nonempty`` if given."""
+
+    nonempty: bool = True
+
+    def __call__(self, dest: str, value: object) -> None:
+        if self.nonempty and isinstance(value, (list, tuple, str)) and len(value) == 0:
+            raise TactileBenchError(f"{flag(dest)}: give at least one, or leave it out")
+        check_unique(flag(dest), value)
+
+
+Rule = Callable[[str, object], None]
+
+#: every numeric or list argument of every command, by its ``dest``
+ARG_RULES: dict[str, Rule] = {
+    "threads": Count(1, 1024),
+    "seed": Seed(),
+    "model_seed": Count(0, 1_000_000),
+    "size": Count(MIN_SIZE, MAX_SIZE),
+    "pairs": Count(10),
+    "generate": Count(1),
+    "max_pairs": Count(4),  # the diagnosis needs 4 pairs (run.MIN_PAIRS)
+    "pretrain_pairs": Count(10),
+    "pretrain_steps": Count(1),
+    "finetune_steps": Count(1),
+    "cgan_steps": Count(1),
+    "repeats": Count(1, 10_000),
+    "ddpm_images": Count(1),
+    "fit_fraction": Real(0.0, 1.0),
+    "press_mm": Real(0.0, 3.0, closed_high=True, unit="mm (the gel is about 2 mm thick)"),
+    "step_mm": Real(0.0, 24.0, closed_high=True, unit="mm"),
+    "pitch_mm": Real(0.0, 24.0, closed_high=True, unit="mm"),
+    "chars": Names(nonempty=False),
+    "objects": Names(nonempty=False),
+    "candidates": Names(),
+    "only": Names(),
+    "force": Names(nonempty=False),
+}
+
+
+@dataclass(frozen=True)
+class Output:
+    """An output argument: a folder or a file (with the suffixes its format has), locked
+    while the command runs unless ``lock`` is False."""
+
+    folder: bool
+    suffixes: tuple[str, ...] = ()
+    lock: bool = True
+
+
+#: each command's output arguments: (command, dest) -> Output. ``fit``'s run dir comes from
+#: its recipe, so the runner checks and locks it (``pipeline.runner``).
+OUTPUTS: dict[tuple[str, str], Output] = {
+    ("diagnose", "out"): Output(folder=True),
+    ("export-pairs", "out"): Output(folder=True),
+    ("data ycb-slide", "out"): Output(folder=True),
+    ("render", "out"): Output(folder=False, suffixes=(".png",)),
+    ("ground", "figure"): Output(folder=False, suffixes=(".png",)),
+    ("real-translators", "out"): Output(folder=True),
+    ("validate-diagnosis", "out"): Output(folder=True),
+    ("bench", "out"): Output(folder=True),
+    ("read", "save_frames"): Output(folder=False, suffixes=(".png",)),
+    ("fit", "run_dir"): Output(folder=True, lock=False),
+}
+
+
+def command_name(ns: argparse.Namespace) -> str:
+    """``data ycb-slide`` for a nested subcommand, else the command."""
+    sub = getattr(ns, "dataset", None)
+    return f"{ns.command} {sub}" if sub else str(ns.command)
+
+
+# ----------------------------------------------------------------------------- estimates
+def _pairs_estimate(key: str, n: int, size: int, out: str | None) -> None:
+    pixels = float(n) * size * size
+    what = f"{n} pairs of {size} x {size} pixels"
+    check_memory(key, what, pixels * BYTES_PER_PAIR_PIXEL)
+    if out is not None:
+        check_disk(key, what, pixels * DISK_PER_PAIR_PIXEL, Path(out))
+
+
+def _export_pairs(ns: argparse.Namespace) -> None:
+    if ns.generate is not None:
+        _pairs_estimate(f"--generate {ns.generate} --size {ns.size}", ns.generate, ns.size, ns.out)
+
+
+def _data_ycb(ns: argparse.Namespace) -> None:
+    if ns.pairs is not None:
+        _pairs_estimate(f"--pairs {ns.pairs}", ns.pairs, 64, ns.out)
+
+
+def _validate_diagnosis(ns: argparse.Namespace) -> None:
+    if ns.pairs is not None:
+        _pairs_estimate(f"--pairs {ns.pairs} --size {ns.size}", ns.pairs, ns.size, None)
+
+
+def _real_translators(ns: argparse.Namespace) -> None:
+    _pairs_estimate(f"--pretrain-pairs {ns.pretrain_pairs}", ns.pretrain_pairs, 64, ns.out)
+
+
+def _render(ns: argparse.Namespace) -> None:
+    if not ns.chars and not ns.objects:
+        raise TactileBenchError("--chars, --objects: both empty; give at least one of them")
+
+
+#: what each command would allocate or write, from its arguments
+ESTIMATES: dict[str, Callable[[argparse.Namespace], None]] = {
+    "export-pairs": _export_pairs,
+    "data ycb-slide": _data_ycb,
+    "validate-diagnosis": _validate_diagnosis,
+    "real-translators": _real_translators,
+    "render": _render,
+}
+
+
+def check_arguments(ns: argparse.Namespace) -> None:
+    """Every rule that applies to ``ns``: values, then estimates, then outputs."""
+    for dest, value in vars(ns).items():
+        rule = ARG_RULES.get(dest)
+        if rule is not None and value is not None:
+            rule(dest, value)
+    command = command_name(ns)
+    estimate = ESTIMATES.get(command)
+    if estimate is not None:
+        estimate(ns)
+    for (cmd, dest), spec in OUTPUTS.items():
+        value = getattr(ns, dest, None)
+        if cmd != command or value is None:
+            continue
+        if spec.folder:
+            check_output_dir(value, flag(dest))
+        else:
+            check_output_file(value, flag(dest), spec.suffixes)
+
+
+@contextlib.contextmanager
+def output_locks(ns: argparse.Namespace) -> Iterator[None]:
+    """Hold the locks of the command's locked outputs while it runs."""
+    command = command_name(ns)
+    with contextlib.ExitStack() as stack:
+        for (cmd, dest), spec in OUTPUTS.items():
+            value = getattr(ns, dest, None)
+            if cmd == command and spec.lock and value is not None:
+                stack.enter_context(OutputLock(Path(value), flag(dest)))
+        yield
+
+
+def check_environment() -> None:
+    """Settings of the environment that would fail only after the work (a wandb login)."""
+    from tactile_bench.pipeline.loggers import wandb_enabled
+
+    if os.environ.get("WANDB_MODE", "").strip().lower() != "online" or not wandb_enabled():
+        return
+    if os.environ.get("WANDB_API_KEY"):
+        return
+    netrc = Path(os.environ.get("NETRC", Path.home() / ".netrc"))
+    try:
+        if "api.wandb.ai" in netrc.read_text():
+            return
+    except OSError:
+        pass
+    raise TactileBenchError(
+        "WANDB_MODE=online: no wandb API key (set WANDB_API_KEY or run `wandb login`), or "
+        "unset WANDB_MODE to log offline, or set TACTILE_BENCH_NO_WANDB=1"
+    )
