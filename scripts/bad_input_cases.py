@@ -89,15 +89,19 @@ def c_grey_frame(tmp: Path) -> list[str]:
     return ["check", str(root)]
 
 
-def c_colour_mask(tmp: Path) -> list[str]:
+def c_truncated_mask(tmp: Path) -> list[str]:
+    # a colour or 16-bit mask is read as the original reads it (cv2.imread, then grey); a
+    # mask cut short fails there too (cv2.imread gives None)
     root = _td(tmp)
-    png(root / "real_fine_tuning/mask/b/b_0.png", frame(6))
+    f = root / "real_fine_tuning/mask/b/b_0.png"
+    f.write_bytes(f.read_bytes()[: len(f.read_bytes()) // 2])
     return ["check", str(root)]
 
 
-def c_16bit_mask(tmp: Path) -> list[str]:
+def c_frame_off_background(tmp: Path) -> list[str]:
+    # the original subtracts bg_10044.png at full size (compute_diff), which fails
     root = _td(tmp)
-    png(root / "real_fine_tuning/mask/a/a_0.png", np.full((240, 320), 4000, np.uint16))
+    png(root / "real_fine_tuning/color/a/a_0.png", frame(6, (160, 120)))
     return ["check", str(root)]
 
 
@@ -300,8 +304,8 @@ CASES: list[Case] = [
     Case("wrong image size", c_wrong_size, "b_0.png"),
     Case("wrong channel count (RGBA frame)", c_rgba, "a_1.png"),
     Case("grey frame where RGB expected", c_grey_frame, "a_1.png"),
-    Case("colour image as depth mask", c_colour_mask, "b_0.png"),
-    Case("16-bit depth mask in an 8-bit layout", c_16bit_mask, "a_0.png"),
+    Case("truncated depth mask", c_truncated_mask, "b_0.png"),
+    Case("fine-tuning frame off its background's size", c_frame_off_background, "a_0.png"),
     Case("empty folder", c_empty_folder, "real_fine_tuning"),
     Case("unpaired file", c_unpaired, "b_extra.png"),
     Case("unknown label folder", c_unknown_label, "zz"),

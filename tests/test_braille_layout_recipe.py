@@ -53,7 +53,9 @@ def test_recipe_reads_the_tactile_diffusion_layout(tmp_path: Path) -> None:
     }
     finetune = BrailleSet.load(stages["braille"] / "finetune.npz")
     test = BrailleSet.load(stages["braille"] / "test.npz")
-    assert (len(finetune), len(test)) == (9, 3)  # 3 train + 1 test per letter
+    split_train = BrailleSet.load(stages["braille"] / "split_train.npz")
+    # finetune: the whole pool (braille_clf); split_train/test: the split file's lists
+    assert (len(finetune), len(split_train), len(test)) == (12, 9, 3)
     assert sorted(set(finetune.labels.tolist())) == [0, 1, 2]  # a, b, # as chars "AB#"
     # the fixture's masks are a flat grey level 20: 0.6 mm everywhere
     assert abs(float(finetune.depth.mean()) - 0.6) < 1e-3

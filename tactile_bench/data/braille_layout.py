@@ -1,11 +1,17 @@
 """Braille sets from a folder in the Tactile-Diffusion layout, shaped like the simulated ones.
 
 A user with the real braille data points a recipe's ``braille_data`` stage at it
-(``source: PATH``) and every downstream stage runs unchanged:
+(``source: PATH``, the ``braille`` folder or its parent) and every downstream stage runs
+unchanged:
 
-- ``finetune`` / ``test``: the release's ``real_fine_tuning`` train / test pairs (TACTO depth
-  and the real frame); their sim image is our simulator over that depth, as TACTO would
-  render it;
+- ``finetune``: every (TACTO depth, real frame) pair of ``real_fine_tuning``: the pool the
+  classifiers fine-tune on a fraction of, as ``braille_clf`` draws ``p_data_fine_tune`` of
+  all of ``real_fine_tuning/color``; its sim image is our simulator over that depth;
+- ``split_train`` / ``test``: the train / test lists of the diffusion translator's split
+  (``files_train_test.npy``, or one drawn as ``split_braille_dataset`` does: 20% of the
+  files, 80/20), what ``train_braille.py`` / ``test_braille.py`` train and score on;
+- ``sim_release`` (``sim_source: release``): the release's TACTO frames ``sim_tacto/color``
+  on ``bg_11``, the images the paper's Sim row trained on; no depth (``has_depth`` False);
 - ``classifier_test``: the release's ``real/color`` frames, which have no depth: their sim
   image and depth are absent (zeros), and ``has_sim`` says so, so nobody reads them;
 - ``classifier``: the simulated classifier grid, which the paper also simulated; it has no
@@ -21,7 +27,12 @@ import torch
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.images import to_uint8
 from tactile_bench.data.pairs import PairSet
-from tactile_bench.data.tactile_diffusion import load_braille_pairs, load_braille_real_images
+from tactile_bench.data.tactile_diffusion import (
+    SIM_BACKGROUND_ID,
+    Split,
+    load_braille_pairs,
+    load_braille_real_images,
+)
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.geometry.contacts import Poses
@@ -31,10 +42,12 @@ from tactile_bench.sensor.optics import SimOptics
 # What each set of a layout-backed run carries (absent parts are zeros of the right shape).
 LAYOUT_CONTENT = {
     "finetune": {"has_sim": True, "has_real": True},
+    "split_train": {"has_sim": True, "has_real": True},
     "test": {"has_sim": True, "has_real": True},
     "classifier": {"has_sim": True, "has_real": False},
     "classifier_test": {"has_sim": False, "has_real": True},
 }
+SIM_RELEASE_CONTENT = {"has_sim": True, "has_real": False, "has_depth": False}
 
 
 def _single(background: torch.Tensor) -> torch.Tensor:
@@ -77,14 +90,19 @@ def _relabel(labels: torch.Tensor, chars: tuple[str, ...], root: Path) -> torch.
     return torch.tensor([position[int(v)] for v in labels], dtype=torch.int64)
 
 
-def check_braille_layout(root: Path) -> None:
+def check_braille_layout(root: Path, sim_release: bool = False) -> None:
     """Fail before any work when ``root`` is not a Tactile-Diffusion braille folder."""
-    for sub in ("real_fine_tuning/color", "real_fine_tuning/mask", "real/color", "bgs"):
+    subs = ["real_fine_tuning/color", "real_fine_tuning/mask", "real/color", "bgs"]
+    for sub in subs + (["sim_tacto/color"] if sim_release else []):
         if not (root / sub).is_dir():
             raise TactileBenchError(
                 f"source: {root / sub}: folder not found (expected the Tactile-Diffusion "
                 "braille layout: real_fine_tuning/{color,mask}, real/color, bgs)"
             )
+
+
+def _split_part(split: Split, part: str) -> dict[str, list[str]]:
+    return {letter: parts[part] for letter, parts in split.items()}
 
 
 def load_layout_sets(
@@ -94,15 +112,26 @@ def load_layout_sets(
     simulated_classifier: BrailleSet,
     seed: int,
     chars: tuple[str, ...],
+    split: Split,
+    sim_release: bool = False,
 ) -> dict[str, BrailleSet]:
-    """The four sets of a braille_data stage, read from ``root`` (see the module doc)."""
-    check_braille_layout(root)
+    """The sets of a braille_data stage, read from ``root`` (see the module doc).
+
+    ``split``: the translator's split ({letter: {"train", "test"}}), read or drawn by the
+    caller (``tactile_diffusion.split_for_run``).
+    """
+    check_braille_layout(root, sim_release)
     generator = torch.Generator().manual_seed(seed)
-    finetune = _pairs_set(load_braille_pairs(root, "train", gel), sim_background, generator, gel)
-    test = _pairs_set(load_braille_pairs(root, "test", gel), sim_background, generator, gel)
+    loaded = {
+        "finetune": load_braille_pairs(root, "all", gel),
+        "split_train": load_braille_pairs(root, _split_part(split, "train"), gel),
+        "test": load_braille_pairs(root, _split_part(split, "test"), gel),
+    }
+    out: dict[str, BrailleSet] = {}
+    for name, pairs in loaded.items():
+        out[name] = _pairs_set(pairs, sim_background, generator, gel)
+        out[name].labels = out[name].poses.labels = _relabel(out[name].labels, chars, root)
     images, labels, background = load_braille_real_images(root, gel)
-    finetune.labels = finetune.poses.labels = _relabel(finetune.labels, chars, root)
-    test.labels = test.poses.labels = _relabel(test.labels, chars, root)
     labels = _relabel(labels, chars, root)
     n, size = len(labels), gel.size
     blank_depth = torch.zeros(n, 1, size, size)
@@ -124,9 +153,20 @@ def load_layout_sets(
         sim_background=simulated_classifier.sim_background,
         real_background=to_uint8(_single(background)),
     )
-    return {
-        "finetune": finetune,
-        "test": test,
-        "classifier": classifier,
-        "classifier_test": classifier_test,
-    }
+    out |= {"classifier": classifier, "classifier_test": classifier_test}
+    if sim_release:
+        sims, sim_labels, sim_bg = load_braille_real_images(
+            root, gel, subset="sim_tacto", background_id=SIM_BACKGROUND_ID
+        )
+        sim_labels = _relabel(sim_labels, chars, root)
+        m = len(sim_labels)
+        out["sim_release"] = BrailleSet(
+            depth=torch.zeros(m, 1, size, size),
+            sim=to_uint8(sims),
+            real=torch.zeros(m, 3, size, size, dtype=torch.uint8),
+            labels=sim_labels,
+            poses=_unposed(sim_labels, torch.zeros(m, 1, size, size)),
+            sim_background=to_uint8(_single(sim_bg)),
+            real_background=to_uint8(_single(background)),
+        )
+    return out

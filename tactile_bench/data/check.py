@@ -18,18 +18,33 @@ from tactile_bench.errors import TactileBenchError
 Skipped = list[tuple[str, str]]
 
 
-def _tactile_diffusion(path: Path, skipped: Skipped | None) -> str:
-    from tactile_bench.data.tactile_diffusion import load_braille_pairs, load_braille_real_images
+def _tactile_diffusion(path: Path, skipped: Skipped | None, seed: int = 0) -> str:
+    """Read what a ``braille_data`` stage with this ``source:`` reads, split included: the
+    release's file, or the split the stage would draw with ``seed`` (not written anywhere)."""
+    from tactile_bench.data.tactile_diffusion import (
+        SIM_BACKGROUND_ID,
+        braille_root,
+        load_braille_pairs,
+        load_braille_real_images,
+        split_for_run,
+    )
 
-    base = path / "braille" if (path / "braille" / "real_fine_tuning").is_dir() else path
+    base = braille_root(path)
     pairs = load_braille_pairs(base, "all", skipped=skipped)
-    text = f"Tactile-Diffusion braille layout: {len(pairs)} fine-tuning pairs"
-    if (base / "real_fine_tuning" / "files_train_test.npy").exists():
-        n_train = len(load_braille_pairs(base, "train", skipped=skipped))
-        text += f" ({n_train} in the train split)"
-    if (base / "real" / "color").is_dir():
-        images, _, _ = load_braille_real_images(base, skipped=skipped)
-        text += f", {len(images)} real test frames"
+    text = f"Tactile-Diffusion braille layout at {base}: {len(pairs)} fine-tuning pairs"
+    split, origin = split_for_run(base, seed)
+    n = {
+        part: len(load_braille_pairs(base, {k: v[part] for k, v in split.items()}, skipped=skipped))
+        for part in ("train", "test")
+    }
+    text += f"; translator split {n['train']} train / {n['test']} test ({origin})"
+    images, _, _ = load_braille_real_images(base, skipped=skipped)
+    text += f"; {len(images)} real test frames"
+    if (base / "sim_tacto" / "color").is_dir():
+        sims, _, _ = load_braille_real_images(
+            base, subset="sim_tacto", background_id=SIM_BACKGROUND_ID, skipped=skipped
+        )
+        text += f"; {len(sims)} release sim frames (sim_source: release)"
     return text
 
 
@@ -111,7 +126,7 @@ def detect(path: Path) -> str:
     ):
         return "ycb-slide"
     if any((path / sub / "real_fine_tuning").is_dir() for sub in (".", "braille")):
-        return "tactile-diffusion"
+        return "tactile-diffusion"  # the same rule as tactile_diffusion.braille_root
     if (path / "depth").is_dir():
         return "paired"
     raise TactileBenchError(
@@ -124,7 +139,10 @@ def _cmd_check(ns: argparse.Namespace) -> int:
     path = Path(ns.path)
     layout = ns.layout or detect(path)
     skipped: Skipped | None = [] if ns.skip_bad else None
-    summary = LAYOUTS[layout](path, skipped)
+    if layout == "tactile-diffusion":
+        summary = _tactile_diffusion(path, skipped, ns.seed)
+    else:
+        summary = LAYOUTS[layout](path, skipped)
     print(f"ok: {path}: {summary}")
     if skipped:
         print(f"skipped {len(skipped)} bad sample(s) (--skip-bad):")
@@ -145,5 +163,11 @@ def register(subparsers: Any) -> None:
         "--skip-bad",
         action="store_true",
         help="skip bad samples of a dataset folder and list them, instead of stopping",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="braille data without a split file: draw the split a recipe of this seed draws",
     )
     parser.set_defaults(func=_cmd_check)

@@ -117,3 +117,39 @@ def read_gray(path: Path, size: int | None = None, same: SameSize | None = None)
     if size is not None:
         im = im.resize((size, size), Image.Resampling.BOX)
     return np.asarray(im, dtype=np.float64)
+
+
+#: cv2's COLOR_RGB2GRAY weights. dataio_braille.py applies it to what cv2.imread gives (B, G, R
+#: order), so the file's blue channel gets the 0.299; on grey masks (equal channels) it is exact.
+_RGB2GRAY = np.array([0.299, 0.587, 0.114])
+
+
+def read_mask(path: Path, size: int | None = None, weights_bgr_as_rgb: bool = True) -> np.ndarray:
+    """(S, S) float64 grey levels 0..255 of a depth mask, read as the original reads it.
+
+    Tactile-Diffusion (``dataio_braille.py``: ``cv2.imread`` then ``cv2.COLOR_RGB2GRAY``;
+    ``dataio_ycb.py``: ``COLOR_BGR2GRAY``) takes any image as 8-bit colour and converts it to
+    grey, then resizes it to the model size on its own (INTER_AREA), whatever the frame's size.
+    So a mask stored as colour (3 equal channels from ``cv2.imwrite``, or a tinted export) or
+    at another size than its frame is read, not refused; 16-bit masks become 8-bit (>> 8) as
+    ``cv2.imread`` makes them. ``weights_bgr_as_rgb``: the braille loader's channel order
+    (False: ``dataio_ycb.py``'s correct BGR2GRAY).
+    """
+    im = open_image(path)
+    if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+        grey = np.clip(np.asarray(im, dtype=np.int64) >> 8, 0, 255).astype(np.float64)
+    elif im.mode == "L":
+        grey = np.asarray(im, dtype=np.float64)
+    else:
+        try:
+            rgb = np.asarray(im.convert("RGB"), dtype=np.float64)
+        except (ValueError, OSError) as exc:
+            raise TactileBenchError(
+                f"{path}: {_channels(im)} cannot be read as a mask ({exc})"
+            ) from None
+        weights = _RGB2GRAY[::-1] if weights_bgr_as_rgb else _RGB2GRAY
+        grey = np.floor(rgb @ weights + 0.5)  # cv2 rounds to the nearest level
+    im = Image.fromarray(np.clip(grey, 0, 255).astype(np.uint8), "L")
+    if size is not None:
+        im = im.resize((size, size), Image.Resampling.BOX)
+    return np.asarray(im, dtype=np.float64)

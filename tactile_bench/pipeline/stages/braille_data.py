@@ -2,20 +2,36 @@
 
 ``source: surrogate`` (default) simulates every set with the surrogate DIGIT as the real
 sensor; ``source: PATH`` reads the real sets from a folder in the Tactile-Diffusion layout
-(see ``data.braille_layout``) and simulates only the classifier grid, as the paper did.
+(the ``braille`` folder or its parent ``datasets``; see ``data.braille_layout``) and
+simulates only the classifier grid, as the paper did. Without the release's split file the
+stage draws one as ``train_braille.py`` does, from the recipe's seed, and writes it here
+(``files_train_test.npy``), never into the dataset. ``sim_source: release`` adds the
+release's TACTO frames (``sim_release``) for the paper's Sim row.
 The stage's metrics say which sets carry real and sim images (``content``).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from pydantic import Field
 
 from tactile_bench.data.braille import build_braille_sets
-from tactile_bench.data.braille_layout import LAYOUT_CONTENT, check_braille_layout, load_layout_sets
+from tactile_bench.data.braille_layout import (
+    LAYOUT_CONTENT,
+    SIM_RELEASE_CONTENT,
+    check_braille_layout,
+    load_layout_sets,
+)
+from tactile_bench.data.tactile_diffusion import (
+    DATASET_RATIO,
+    SPLIT_FILE,
+    TEST_RATIO,
+    braille_root,
+    split_for_run,
+)
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.pipeline.stages.base import (
@@ -48,6 +64,28 @@ class BrailleDataConfig(StageConfig):
     real_sensor: str = "digit"
     image_size: int = Field(default=64, ge=16, le=256)
     oversample: int = Field(default=2, ge=1, le=8)
+    sim_source: Literal["simulate", "release"] = Field(
+        default="simulate",
+        description="release: also read sim_tacto/color (the paper's Sim row images)",
+    )
+    split_ratio: float = Field(
+        default=DATASET_RATIO, gt=0.0, le=1.0, description="dataset_ratio of a drawn split"
+    )
+    split_test_ratio: float = Field(
+        default=TEST_RATIO, gt=0.0, lt=1.0, description="test_ratio of a drawn split"
+    )
+
+
+def source_root(config: BrailleDataConfig, base_dir: Path) -> Path:
+    """The braille folder ``source:`` names (itself or its ``braille/`` child)."""
+    path = resolve_source(config.source, base_dir)
+    try:
+        return braille_root(path)
+    except TactileBenchError:
+        raise TactileBenchError(
+            f"source: {path}: folder not found or not the Tactile-Diffusion braille layout "
+            "(expected real_fine_tuning/{color,mask}, real/color, bgs in it or in its braille/)"
+        ) from None
 
 
 def _check(config: BrailleDataConfig, base_dir: Path) -> None:
@@ -55,8 +93,13 @@ def _check(config: BrailleDataConfig, base_dir: Path) -> None:
     if unknown:
         raise TactileBenchError(f"chars: not braille characters of the paper: {''.join(unknown)}")
     check_real_sensor(config.real_sensor, base_dir)
-    if config.source != "surrogate":
-        check_braille_layout(resolve_source(config.source, base_dir))
+    if config.source == "surrogate":
+        if config.sim_source == "release":
+            raise TactileBenchError(
+                "sim_source: release needs a real-data source (the release's sim_tacto/color)"
+            )
+        return
+    check_braille_layout(source_root(config, base_dir), config.sim_source == "release")
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
@@ -81,15 +124,34 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         n_classifier_test=config.n_classifier_test if simulated else len(chars),
         progress=ctx.progress,
     )
-    content = {name: {"has_sim": True, "has_real": True} for name in SETS}
-    if not simulated:
-        root = resolve_source(config.source, ctx.recipe_dir)
-        sets = load_layout_sets(
-            root, gel, sim_background(config.image_size), sets["classifier"], ctx.seed, chars
-        )
-        content = LAYOUT_CONTENT
+    content: dict[str, Any] = {name: {"has_sim": True, "has_real": True} for name in SETS}
     outputs = {}
-    for name in SETS:
+    extra: dict[str, Any] = {}
+    if not simulated:
+        root = source_root(config, ctx.recipe_dir)
+        split, origin = split_for_run(
+            root,
+            ctx.seed,
+            write_to=ctx.directory / SPLIT_FILE,
+            dataset_ratio=config.split_ratio,
+            test_ratio=config.split_test_ratio,
+        )
+        if (ctx.directory / SPLIT_FILE).exists():
+            outputs["split"] = SPLIT_FILE
+        release = config.sim_source == "release"
+        sets = load_layout_sets(
+            root,
+            gel,
+            sim_background(config.image_size),
+            sets["classifier"],
+            ctx.seed,
+            chars,
+            split,
+            sim_release=release,
+        )
+        content = dict(LAYOUT_CONTENT) | ({"sim_release": SIM_RELEASE_CONTENT} if release else {})
+        extra = {"source_root": str(root), "split": origin}
+    for name in sets:
         sets[name].save(ctx.directory / f"{name}.npz")
         outputs[name] = f"{name}.npz"
 
@@ -107,7 +169,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     )
     outputs["preview"] = "preview.png"
     real = config.real_sensor if config.source == "surrogate" else config.source
-    return outputs, {"real_sensor": real, "content": content} | {n: len(sets[n]) for n in SETS}
+    counts = {n: len(sets[n]) for n in sets}
+    return outputs, {"real_sensor": real, "content": content} | extra | counts
 
 
 STAGE = StageKind(

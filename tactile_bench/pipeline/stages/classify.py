@@ -64,7 +64,8 @@ class ClassifyConfig(StageConfig):
 
     row: str
     train_images: Literal["translated", "sim", "real"] = "translated"
-    train_set: Literal["classifier", "finetune"] = "classifier"
+    # sim_release: the release's TACTO frames (braille_data sim_source: release), train_images: sim
+    train_set: Literal["classifier", "finetune", "sim_release"] = "classifier"
     finetune_fraction: float = Field(default=0.0, ge=0.0, le=1.0)
     finetune_epochs: int = Field(default=4, ge=1)
     seeds: list[int] = Field(default=[0], min_length=1)
@@ -86,6 +87,17 @@ def _has(ctx: StageContext, split: str, what: str) -> bool:
 
 def _training_foreground(ctx: StageContext) -> tuple[torch.Tensor, torch.Tensor]:
     config: ClassifyConfig = ctx.config
+    if config.train_set == "sim_release" and config.train_images != "sim":
+        raise TactileBenchError(
+            f"stage {ctx.name}: train_set: sim_release holds the release's TACTO frames: "
+            "set train_images: sim"
+        )
+    if config.train_set not in ctx.input("data").outputs:
+        raise TactileBenchError(
+            f"stage {ctx.name}: train_set: {config.train_set}: data stage "
+            f"{ctx.input('data').name!r} has no such set (sim_release needs braille_data "
+            "with a real-data source and sim_source: release)"
+        )
     if config.train_images != "translated" and not _has(
         ctx, config.train_set, f"has_{config.train_images}"
     ):
@@ -324,6 +336,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         "finetune_fraction": config.finetune_fraction,
         "seeds": config.seeds,
         "n_train": int(len(labels) - len(held_idx)),
+        "n_finetune": len(pool) if pool is not None else 0,  # real pairs it fine-tuned on
         "n_test": int(len(test)),
         **{
             m: _summary([s["test"][m] for s in per_seed])

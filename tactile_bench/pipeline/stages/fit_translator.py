@@ -10,7 +10,7 @@ an uninterrupted run write the same files)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from pydantic import Field
@@ -37,6 +37,11 @@ class FitTranslatorConfig(StageConfig):
     translator: str
     translator_config: dict[str, Any] = {}
     fraction: float = Field(default=1.0, gt=0.0, le=1.0)
+    train_set: Literal["finetune", "split_train"] = Field(
+        default="finetune",
+        description="braille pairs to fit on: the fine-tuning pool, or (real data) the "
+        "translator split's train list, as train_braille.py trains",
+    )
     eval_pairs: int = Field(default=64, ge=0)
     init_checkpoint: str | None = None
 
@@ -68,8 +73,14 @@ def _pairs(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Train depth and foreground; held-out depth, real images and background(s)."""
     braille, corpus = ctx.optional_input("braille"), ctx.optional_input("corpus")
+    train_set = ctx.config.train_set
+    if braille is not None and train_set not in braille.outputs:
+        raise TactileBenchError(
+            f"stage {ctx.name}: train_set: {train_set} needs a braille_data stage with a "
+            f"real-data source; {braille.name!r} has {', '.join(sorted(braille.outputs))}"
+        )
     if braille is not None:
-        pool = BrailleSet.load(braille.path("finetune"))
+        pool = BrailleSet.load(braille.path(train_set))
         pool = pool.subset(stratified_subset(pool.labels, fraction, ctx.seed))
         test = BrailleSet.load(braille.path("test"))
         return (

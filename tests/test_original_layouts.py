@@ -1,0 +1,181 @@
+"""The real datasets as their authors publish them (fixtures from the original code's paths).
+
+``data/original_layouts.py`` writes the Tactile-Diffusion braille release and its processed
+YCB-Slide copy to the paths, names and formats the original code reads: no split file, all 27
+letter folders, masks smaller than the frames and partly stored as colour. ``check`` and
+``fit`` must agree on each, and the split must be made in the run, never in the dataset.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from data.original_layouts import BGS_LETTERS, write_braille_release
+from PIL import Image
+
+from tactile_bench.cli import main
+from tactile_bench.data.braille import BrailleSet
+from tactile_bench.data.images import read_mask
+from tactile_bench.data.tactile_diffusion import (
+    braille_root,
+    load_braille_pairs,
+    make_split,
+    read_split,
+)
+
+RECIPE = """
+name: release
+seed: 3
+stages:
+  - name: braille
+    kind: braille_data
+    config: {{source: {source}, n_classifier: 54, image_size: 16, sim_source: release}}
+  - name: translator
+    kind: fit_translator
+    inputs: {{braille: braille}}
+    config:
+      translator: colour_match
+      train_set: split_train
+      eval_pairs: 8
+      translator_config: {{max_steps: 1, batch_size: 8}}
+  - name: classify_sim
+    kind: classify
+    inputs: {{data: braille}}
+    config: {{row: sim, train_images: sim, train_set: sim_release, heldout_fraction: 0.0,
+              classifier: {{width: 4, epochs: 1}}}}
+  - name: classify_sim_ft20
+    kind: classify
+    inputs: {{data: braille, init: classify_sim}}
+    config: {{row: sim_ft20, train_images: sim, train_set: sim_release, heldout_fraction: 0.0,
+              finetune_fraction: 0.2, finetune_epochs: 1, classifier: {{width: 4, epochs: 1}}}}
+"""
+
+
+def _fit(recipe: Path, run_dir: Path) -> int:
+    return main(["fit", str(recipe), "--run-dir", str(run_dir), "--no-progress"])
+
+
+def _stage_dirs(run_dir: Path) -> dict[str, Path]:
+    stages = json.loads((run_dir / "run.json").read_text())["stages"]
+    return {s["name"]: run_dir / s["directory"] for s in stages}
+
+
+@pytest.fixture(scope="module")
+def release(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``<tmp>/datasets/braille``; returns ``<tmp>/datasets`` (what users point at)."""
+    datasets = tmp_path_factory.mktemp("release") / "datasets"
+    write_braille_release(datasets)
+    return datasets
+
+
+@pytest.fixture(scope="module")
+def fitted(release: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One fit of the recipe on the parent ``datasets`` folder; returns the run dir."""
+    work = tmp_path_factory.mktemp("fit")
+    recipe = work / "release.yaml"
+    recipe.write_text(RECIPE.format(source=release))
+    run_dir = work / "run"
+    assert _fit(recipe, run_dir) == 0
+    return run_dir
+
+
+def test_split_is_drawn_into_the_run_not_the_dataset(
+    release: Path, fitted: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    braille = release / "braille"
+    assert not (braille / "real_fine_tuning" / "files_train_test.npy").exists()
+    written = _stage_dirs(fitted)["braille"] / "files_train_test.npy"
+    # readable the way train_braille.py reads it: dict(np.load(...).item())
+    split = dict(np.load(written, allow_pickle=True).item())
+    assert list(split) == list(BGS_LETTERS)
+    # split_braille_dataset(0.2, 0.2) on 10 files a letter: keep 2, train int(1.6) = 1
+    assert all((len(v["train"]), len(v["test"])) == (1, 1) for v in split.values())
+    assert split == make_split(braille, seed=3)  # the recipe's seed, drawn again: the same
+    assert not set(split["a"]["train"]) & set(split["a"]["test"])
+    # check draws the split a recipe of that seed draws, and reports the same counts
+    assert main(["check", str(release), "--seed", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "270 fine-tuning pairs" in out and "27 train / 27 test" in out
+    assert not (braille / "real_fine_tuning" / "files_train_test.npy").exists()
+
+
+def test_split_file_of_the_release_is_read_when_present(tmp_path: Path) -> None:
+    datasets = tmp_path / "datasets"
+    braille = write_braille_release(datasets, per_letter=10)
+    split = {letter: {"train": ["0.jpg", "1.jpg", "2.jpg"], "test": ["3.jpg"]} for letter in "ab"}
+    np.save(braille / "real_fine_tuning" / "files_train_test.npy", split)  # as the original
+    assert read_split(braille / "real_fine_tuning" / "files_train_test.npy") == split
+    assert len(load_braille_pairs(braille, "train", skipped=None)) == 6
+
+
+def test_finetune_fractions_are_of_the_whole_pool(fitted: Path) -> None:
+    dirs = _stage_dirs(fitted)
+    finetune = BrailleSet.load(dirs["braille"] / "finetune.npz")
+    split_train = BrailleSet.load(dirs["braille"] / "split_train.npz")
+    assert (len(finetune), len(split_train)) == (270, 27)  # all 27 x 10 pairs; 1 a letter
+    ft20 = json.loads((dirs["classify_sim_ft20"] / "metrics.json").read_text())["summary"]
+    assert ft20["n_finetune"] == 54  # 20% of all 270 (braille_clf p_data_fine_tune)
+    fitted_translator = json.loads((dirs["translator"] / "metrics.json").read_text())
+    assert fitted_translator["fit_pairs"] == 27  # the translator trains on the split's train list
+
+
+def test_sim_row_trains_on_the_release_tacto_frames(fitted: Path) -> None:
+    dirs = _stage_dirs(fitted)
+    sim = BrailleSet.load(dirs["braille"] / "sim_release.npz")
+    assert len(sim) == 27 and sim.real.max() == 0  # TACTO frames only
+    # bg_11 of the fixture is (90, 100, 130): the Sim row subtracts it (braille_clf dataio)
+    assert sim.sim_background[:, 0, 0].tolist() == [90, 100, 130]
+    summary = json.loads((dirs["classify_sim"] / "metrics.json").read_text())["summary"]
+    assert summary["n_train"] == 27 and summary["n_test"] == 27
+
+
+def test_masks_are_read_as_the_original_reads_them(release: Path, tmp_path: Path) -> None:
+    braille = release / "braille"
+    pairs = load_braille_pairs(braille, "all")  # masks 24 x 32, frames 48 x 64: both read
+    assert pairs.depth.shape == (270, 1, 64, 64) and pairs.real.shape == (270, 3, 64, 64)
+    mask_dir = braille / "real_fine_tuning" / "mask" / "a"
+    grey, colour = read_mask(mask_dir / "0.jpg", 64), read_mask(mask_dir / "1.jpg", 64)
+    assert 19 <= grey.max() <= 21 and 20 <= colour.max() <= 22  # levels 20 and 21, JPEG'd
+    # a tinted mask: cv2.imread gives B, G, R and RGB2GRAY weighs them 0.299, 0.587, 0.114
+    tinted = np.zeros((4, 4, 3), np.uint8)
+    tinted[..., 2] = 100  # blue in the file
+    Image.fromarray(tinted).save(tmp_path / "tinted.png")
+    assert read_mask(tmp_path / "tinted.png")[0, 0] == 30  # round(0.299 * 100)
+    assert read_mask(tmp_path / "tinted.png", weights_bgr_as_rgb=False)[0, 0] == 11
+
+
+def test_source_is_the_braille_folder_or_its_parent(release: Path, tmp_path: Path) -> None:
+    assert braille_root(release) == braille_root(release / "braille") == release / "braille"
+    recipe = tmp_path / "r.yaml"
+    recipe.write_text(
+        "name: r\nstages:\n  - name: braille\n    kind: braille_data\n"
+        f"    config: {{source: {release / 'braille'}, n_classifier: 27, image_size: 16}}\n"
+    )
+    assert main(["check", str(recipe)]) == 0
+    recipe.write_text(recipe.read_text().replace(str(release / "braille"), str(tmp_path)))
+    assert main(["check", str(recipe)]) == 2
+
+
+def test_check_and_fit_fail_alike_on_a_frame_off_the_background_size(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    datasets = tmp_path / "datasets"
+    braille = write_braille_release(datasets, per_letter=10, real_per_letter=1)
+    bad = braille / "real_fine_tuning" / "color" / "b" / "3.jpg"
+    Image.fromarray(np.zeros((10, 10, 3), np.uint8)).save(bad)
+    recipe = tmp_path / "r.yaml"
+    recipe.write_text(
+        "name: r\nstages:\n  - name: braille\n    kind: braille_data\n"
+        f"    config: {{source: {datasets}, n_classifier: 27, image_size: 16}}\n"
+    )
+    capsys.readouterr()
+    assert main(["check", str(datasets)]) == 2
+    check_err = capsys.readouterr().err.strip().splitlines()
+    assert _fit(recipe, tmp_path / "run") == 2
+    fit_err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error:")]
+    assert len(check_err) == 1 and len(fit_err) == 1
+    assert "3.jpg: 10 x 10 pixels" in check_err[0] and "bg_10044.png" in check_err[0]
+    assert check_err[0].split("3.jpg")[1] == fit_err[0].split("3.jpg")[1]
