@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from data.original_layouts import BGS_LETTERS, write_braille_release
 from PIL import Image
 
@@ -179,3 +180,62 @@ def test_check_and_fit_fail_alike_on_a_frame_off_the_background_size(
     assert len(check_err) == 1 and len(fit_err) == 1
     assert "3.jpg: 10 x 10 pixels" in check_err[0] and "bg_10044.png" in check_err[0]
     assert check_err[0].split("3.jpg")[1] == fit_err[0].split("3.jpg")[1]
+
+
+def test_processed_ycb_copy_is_a_corpus_source(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from data.original_layouts import BGS_OBJECTS, write_ycb_processed
+
+    from tactile_bench.data.pairs import load_pairs
+
+    datasets = tmp_path / "datasets"
+    root = write_ycb_processed(datasets, frames=6, logs=2)
+    capsys.readouterr()
+    assert main(["check", str(root)]) == 0
+    out = capsys.readouterr().out
+    # 2 objects x 2 logs x 6 frames, frame 1 of each log has no heightmap: 20 pairs, 4 test
+    assert "20 (depth, frame) pairs from 4 logs (16 train / 4 test" in out
+    recipe = tmp_path / "ycb.yaml"
+    recipe.write_text(
+        "name: ycb\nstages:\n  - name: corpus\n    kind: ycb_slide_data\n"
+        f"    config: {{source: {datasets}, image_size: 16}}\n"
+    )
+    assert _fit(recipe, tmp_path / "run") == 0
+    corpus = _stage_dirs(tmp_path / "run")["corpus"]
+    train, test = load_pairs(corpus, "train"), load_pairs(corpus, "test")
+    assert (len(train), len(test)) == (16, 4)
+    # save_hm's levels are pixels of pixmm = 0.03 mm: the 23-level press is 0.69 mm deep
+    assert abs(float(train.depth.max()) - 23 * 0.03) < 0.05
+    # each object's background is its bgs_objects frame, bgs/bg_<i>.jpg
+    for obj, bg_id in BGS_OBJECTS.items():
+        expected = Image.open(root / "bgs" / f"bg_{bg_id}.jpg").convert("RGB").getpixel((0, 0))
+        o = sorted(BGS_OBJECTS).index(obj)
+        got = train.real_background[train.real_bg_index[train.meta["object"] == o][0]]
+        assert np.abs(got[:, 0, 0].numpy().astype(int) - np.array(expected)).max() <= 2
+    # depth and frame lie the same way: the press is where the frame differs from its bg
+    # (save_hm flipped TACTO's map once; a second flip here would put it upside down)
+    diff = train.foreground("real").sub(0.5).sum(1).flatten(1)
+    as_read, flipped = train.depth[:, 0].flatten(1), train.depth[:, 0].flip(1, 2).flatten(1)
+
+    def corr(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        a, b = a - a.mean(1, keepdim=True), b - b.mean(1, keepdim=True)
+        return (a * b).sum(1) / (a.norm(dim=1) * b.norm(dim=1))
+
+    assert bool((corr(as_read, diff) > 0.5).all())
+    assert bool((corr(as_read, diff) > corr(flipped, diff) + 0.3).all())
+
+
+def test_ycb_slide_release_backgrounds_are_used_when_present(tmp_path: Path) -> None:
+    from data.make_layouts import make_ycb_slide_real
+
+    from tactile_bench.data.ycb_slide import load_ycb_slide_real
+
+    make_ycb_slide_real(tmp_path, "004_sugar_box", n_frames=3, datasets=1)
+    first = load_ycb_slide_real(tmp_path, snap_to_surface=False)  # no bgs/: first frame
+    (tmp_path / "bgs").mkdir()
+    Image.fromarray(np.full((320, 240, 3), 77, np.uint8)).save(tmp_path / "bgs" / "bg_0.jpg")
+    released = load_ycb_slide_real(tmp_path, snap_to_surface=False)
+    assert int(released.real_background.float().mean().round()) == 77
+    assert not torch.equal(first.real_background, released.real_background)
+    assert torch.equal(first.depth, released.depth)

@@ -56,6 +56,23 @@ def _ycb_slide(path: Path, skipped: Skipped | None) -> str:
     return f"YCB-Slide real layout: {len(pairs)} (depth, frame) pairs from {logs} logs"
 
 
+def _ycb_processed(path: Path, skipped: Skipped | None) -> str:
+    from tactile_bench.data.ycb_processed import load_ycb_processed
+
+    pairs, info = load_ycb_processed(path, skipped=skipped)
+    n_test = int(pairs.meta["test"].sum())
+    logs = len(set(pairs.meta["trajectory"].tolist()))
+    backgrounds = info["backgrounds"]
+    assert isinstance(backgrounds, dict)
+    bg = "; ".join(f"{k}: {v}" for k, v in backgrounds.items())
+    return (
+        f"Tactile-Diffusion YCB-Slide copy at {info['root']}: {len(pairs)} (depth, frame) "
+        f"pairs from {logs} logs ({len(pairs) - n_test} train / {n_test} test by its "
+        f"files_train_test.npz; {info['listed_without_depth']} listed frames without a "
+        f"heightmap left out); backgrounds {bg}"
+    )
+
+
 def _corpus(path: Path, skipped: Skipped | None) -> str:
     from tactile_bench.data.pairs import load_pairs
 
@@ -95,6 +112,7 @@ def _checkpoint(path: Path, skipped: Skipped | None) -> str:
 LAYOUTS: dict[str, Callable[[Path, Skipped | None], str]] = {
     "tactile-diffusion": _tactile_diffusion,
     "ycb-slide": _ycb_slide,
+    "ycb-processed": _ycb_processed,
     "corpus": _corpus,
     "paired": _paired,
     "recipe": _recipe,
@@ -125,12 +143,17 @@ def detect(path: Path) -> str:
         and any((path / "real").glob("*/dataset_*"))
     ):
         return "ycb-slide"
+    from tactile_bench.data.ycb_processed import processed_root
+
+    if processed_root(path) is not None and not (path / "braille").is_dir():
+        return "ycb-processed"
     if any((path / sub / "real_fine_tuning").is_dir() for sub in (".", "braille")):
         return "tactile-diffusion"  # the same rule as tactile_diffusion.braille_root
     if (path / "depth").is_dir():
         return "paired"
     raise TactileBenchError(
-        f"{path}: not a layout tactile_bench reads (Tactile-Diffusion braille, YCB-Slide real, "
+        f"{path}: not a layout tactile_bench reads (Tactile-Diffusion braille or YCB-Slide "
+        "copy, YCB-Slide real, "
         "a pair-set corpus with manifest.json, or the paired depth/ sim/ real/ layout)"
     )
 

@@ -47,6 +47,7 @@ from tactile_bench.sensor.timing import stage as timed
 
 from .images import SameSize, read_image
 from .pairs import FORMAT, PairSet, read_manifest, to_uint8, write_backgrounds
+from .ycb_processed import released_background
 
 DEFAULT_PAIRS = 8000  # CPU budget; the paper's corpus is 180_000 ("paper" preset)
 PAPER_PAIRS = 180_000
@@ -507,7 +508,7 @@ def load_ycb_slide_real(
     gel: GelSpec | None = None,
     press_mm: float = 0.7,
     stride: int = 1,
-    background: str = "first_frame",
+    background: str = "auto",
     mesh_units_m: bool | None = None,
     snap_to_surface: bool = True,
     progress: bool = False,
@@ -521,7 +522,9 @@ def load_ycb_slide_real(
     like Tactile-Diffusion's ``render_sensor_trajectory``), render the depth with
     ``sensor.mesh_depth`` and pair it with ``frames/frame_<i:07d>.jpg`` resized to S x S.
     Frames the mocap cleanup drops are skipped; ``stride`` subsamples the 30 Hz log.
-    ``background``: ``"first_frame"`` (logs start before the touch) or an image path.
+    ``background``: ``"auto"`` (default): the released no-contact frame of the object,
+    ``<root>/bgs/bg_<i>.jpg`` by Tactile-Diffusion's ``bgs_objects`` map, when present, else
+    the log's first frame; ``"first_frame"`` (logs start before the touch); or an image path.
     ``mesh_units_m``: YCB meshes are in metres; ``None`` guesses from the mesh size.
     Every frame is decoded and must be RGB of one size per log. With ``skipped`` (a list),
     unreadable or wrong frames are dropped and recorded in it (file, reason) instead of raising.
@@ -593,8 +596,11 @@ def load_ycb_slide_real(
         height = renderer.render_height(poses)
         depths.append(to_depth(height, gel))
         reals.append(torch.stack(frames))
-        if background == "first_frame":
+        released = released_background(rec.root / "bgs", rec.object_name)
+        if background == "first_frame" or (background == "auto" and released is None):
             bgs.append(read_image(frame_files[0], gel.size, same))
+        elif background == "auto":
+            bgs.append(read_image(released, gel.size))  # resized: the original's order too
         else:
             bgs.append(read_image(Path(background), gel.size, same))
         bg_idx.append(np.full(len(idx), t))
@@ -630,11 +636,20 @@ __all__ = [
 
 
 def write_corpus(
-    pairs: PairSet, out_dir: str | os.PathLike, test_per_object: int = 1, kind: str = "ycb_slide"
+    pairs: PairSet,
+    out_dir: str | os.PathLike,
+    test_per_object: int = 1,
+    kind: str = "ycb_slide",
+    test_mask: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Write loaded pairs (e.g. ``load_ycb_slide_real``) as a sharded corpus, split by
     trajectory exactly like the stand-in: the last ``test_per_object`` recordings of each
-    object are the test split, so adjacent frames never straddle train and test."""
+    object are the test split, so adjacent frames never straddle train and test.
+
+    ``test_mask`` (one bool a pair): a split of the data's own instead (Tactile-Diffusion's
+    processed YCB-Slide copy lists test frames per log); each log then has a train shard and
+    a test shard.
+    """
     root = Path(out_dir)
     (root / "shards").mkdir(parents=True, exist_ok=True)
     for key in ("object", "trajectory"):
@@ -643,23 +658,37 @@ def write_corpus(
     write_backgrounds(root, pairs.real_background, pairs.sim_background)
     objects, trajectories = pairs.meta["object"], pairs.meta["trajectory"]
     shards = []
+
+    def shard(where: np.ndarray, rel: str, obj: int, t: int, split: str) -> None:
+        idx = torch.from_numpy(np.flatnonzero(where))
+        if not len(idx):
+            return
+        path = pairs.subset(idx).save_shard(root / rel)
+        shards.append(
+            {
+                "file": rel,
+                "object": obj,
+                "trajectory": t,
+                "split": split,
+                "n": len(idx),
+                "sha256": file_sha256(path),
+            }
+        )
+
     for obj in np.unique(objects):
         mine = np.unique(trajectories[objects == obj])
         test = set(mine[len(mine) - test_per_object :].tolist()) if len(mine) > 1 else set()
         for t in mine:
-            idx = torch.from_numpy(np.flatnonzero((objects == obj) & (trajectories == t)))
-            rel = f"shards/{int(obj)}_{int(t)}.npz"
-            path = pairs.subset(idx).save_shard(root / rel)
-            shards.append(
-                {
-                    "file": rel,
-                    "object": int(obj),
-                    "trajectory": int(t),
-                    "split": "test" if int(t) in test else "train",
-                    "n": len(idx),
-                    "sha256": file_sha256(path),
-                }
-            )
+            here = (objects == obj) & (trajectories == t)
+            if test_mask is None:
+                split = "test" if int(t) in test else "train"
+                shard(here, f"shards/{int(obj)}_{int(t)}.npz", int(obj), int(t), split)
+            else:
+                for split, flag in (("train", False), ("test", True)):
+                    rel = f"shards/{int(obj)}_{int(t)}_{split}.npz"
+                    shard(
+                        here & (np.asarray(test_mask, bool) == flag), rel, int(obj), int(t), split
+                    )
     manifest = {
         "format": FORMAT,
         "kind": kind,

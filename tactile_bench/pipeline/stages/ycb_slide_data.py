@@ -1,4 +1,11 @@
-"""Stage ``ycb_slide_data``: the pretraining corpus (a YCB-Slide stand-in) as sharded pairs."""
+"""Stage ``ycb_slide_data``: the pretraining corpus as sharded pairs.
+
+``source: surrogate`` builds the YCB-Slide stand-in; ``source: PATH`` reads real data: the
+YCB-Slide release (``real/<object>/dataset_<k>``, depth rendered here, the released
+``bgs/bg_<i>.jpg`` as background where present, else each log's first frame), or
+Tactile-Diffusion's processed copy (``dataset/<object>/dataset_<k>/{frames,frames_depth}``,
+its own split and backgrounds; ``data.ycb_processed``).
+"""
 
 from __future__ import annotations
 
@@ -10,6 +17,11 @@ import numpy as np
 from pydantic import Field
 
 from tactile_bench.data.pairs import load_pairs, read_manifest
+from tactile_bench.data.ycb_processed import (
+    load_ycb_processed,
+    processed_root,
+    released_background,
+)
 from tactile_bench.data.ycb_slide import (
     DEFAULT_PAIRS,
     StandinConfig,
@@ -50,9 +62,10 @@ class YcbSlideConfig(StageConfig):
 def _check(config: YcbSlideConfig, base_dir: Path) -> None:
     if config.source != "surrogate":
         root = resolve_source(config.source, base_dir)
-        if not (root / "real").is_dir():
+        if not (root / "real").is_dir() and processed_root(root) is None:
             raise TactileBenchError(
-                f"source: {root} is not a YCB-Slide folder (expected {root / 'real'}/<object>/)"
+                f"source: {root} is not a YCB-Slide folder (expected {root / 'real'}/<object>/, "
+                "or Tactile-Diffusion's copy: dataset/<object>/dataset_<k>/frames_depth)"
             )
         return
     unknown = [o for o in config.objects if o not in OBJECTS]
@@ -64,14 +77,35 @@ def _check(config: YcbSlideConfig, base_dir: Path) -> None:
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: YcbSlideConfig = ctx.config
     skipped: list[tuple[str, str]] | None = [] if config.skip_bad else None
-    if config.source != "surrogate":
+    source_info: dict[str, Any] = {}
+    root = resolve_source(config.source, ctx.recipe_dir) if config.source != "surrogate" else None
+    if root is not None and processed_root(root) is not None:
+        objects = None if config.objects == list(OBJECTS) else config.objects
+        pairs, source_info = load_ycb_processed(
+            root,
+            objects=objects,
+            gel=GelSpec(size=config.image_size),
+            stride=config.stride,
+            skipped=skipped,
+        )
+        source_info["layout"] = "tactile-diffusion processed copy"
+        manifest = write_corpus(pairs, ctx.directory, test_mask=pairs.meta["test"] == 1)
+    elif root is not None:
         pairs = load_ycb_slide_real(
-            resolve_source(config.source, ctx.recipe_dir),
+            root,
             gel=GelSpec(size=config.image_size),
             stride=config.stride,
             progress=ctx.progress,
             skipped=skipped,
         )
+        names = sorted({p.name for p in (root / "real").iterdir() if p.is_dir()})
+        source_info = {
+            "layout": "ycb-slide release",
+            "backgrounds": {
+                n: str(released_background(root / "bgs", n) or "first frame of each log")
+                for n in names
+            },
+        }
         manifest = write_corpus(pairs, ctx.directory)
     else:
         manifest = build_ycb_slide_standin(
@@ -92,6 +126,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     for shard in sorted((ctx.directory / "shards").glob("*.npz")):
         outputs[f"shard_{shard.stem}"] = f"shards/{shard.name}"
     counts = {k: manifest[k] for k in ("n_train", "n_test", "frames_dropped") if k in manifest}
+    counts |= {"source": source_info} if source_info else {}
     if skipped is not None:  # skip_bad: say what was left out, in the log and in a file
         for _, why in skipped:
             log.warning("skipped %s", why)

@@ -1,0 +1,175 @@
+"""Tactile-Diffusion's processed YCB-Slide copy: real DIGIT frames with TACTO depth beside them.
+
+Its pretraining (``tacto_diffusion/data/dataio_ycb.py``, ``utils/misc.py`` at
+carolinahiguera/Tactile-Diffusion) reads
+
+    YCB-Slide/
+      dataset/<object>/dataset_<k>/
+        frames/frame_%07d.jpg            real DIGIT frames
+        frames_depth/frame_%07d.jpg      TACTO heightmap of the same frame (same name)
+        files_train_test.npz             np.savez(train=[names], test=[names])
+      bgs/bg_<i>.jpg                     no-contact frames; object -> i is ``bgs_objects``
+
+The heightmaps were written by ``save_hm`` (``ycb_slide_sim/modules/misc.py``): TACTO's map in
+pixels of ``pixmm`` = 0.03 mm (``ycb_slide_sim/config/config.yaml``), flipped on both axes so
+that it lies as the real frame does, cast to 8 bits by ``cv2.imwrite``. So a grey level is
+0.03 mm, and the file is paired with the frame as stored, without another flip. The split is
+the copy's own (``get_train_test_idx``: 20% of each log's frames at random, not by
+trajectory); frames the mocap cleanup removed have no heightmap (``touch_simulator.py``
+deletes them from ``frames_depth``) and are left out, as the original's loader skips a frame
+it cannot read.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.sensor.depth import GelSpec
+
+from .images import is_hidden, read_image, read_mask
+from .pairs import PairSet
+from .tactile_diffusion import MM_PER_LEVEL
+
+#: ``bgs_objects`` of Tactile-Diffusion's ``utils/misc.py``: each object's background frame
+BGS_OBJECTS = {
+    "004_sugar_box": 0,
+    "005_tomato_soup_can": 1,
+    "006_mustard_bottle": 2,
+    "021_bleach_cleanser": 3,
+    "025_mug": 4,
+    "035_power_drill": 0,
+    "037_scissors": 5,
+    "042_adjustable_wrench": 6,
+    "048_hammer": 8,
+    "055_baseball": 8,
+}
+
+
+def processed_root(path: str | os.PathLike) -> Path | None:
+    """The processed copy's ``YCB-Slide`` folder at ``path`` (itself or its ``YCB-Slide/``
+    child), or None when neither holds ``dataset/<object>/dataset_<k>/frames_depth``."""
+    path = Path(path)
+    for base in (path, path / "YCB-Slide"):
+        if any((base / "dataset").glob("*/dataset_*/frames_depth")):
+            return base
+    return None
+
+
+def released_background(bgs: Path, object_name: str) -> Path | None:
+    """``bgs/bg_<i>.jpg`` of ``object_name`` by ``bgs_objects``, when that file exists."""
+    i = BGS_OBJECTS.get(object_name)
+    path = bgs / f"bg_{i}.jpg"
+    return path if i is not None and path.is_file() else None
+
+
+def _read_split(path: Path) -> tuple[list[str], list[str]]:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return [str(f) for f in z["train"]], [str(f) for f in z["test"]]
+    except FileNotFoundError:
+        raise TactileBenchError(f"{path}: file not found (the copy's per-log split)") from None
+    except KeyError as exc:
+        raise TactileBenchError(f"{path}: no {exc} list (expected train and test)") from None
+    except Exception as exc:  # np.load of arbitrary bytes
+        reason = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
+        raise TactileBenchError(f"{path}: not a readable .npz split ({reason})") from None
+
+
+def load_ycb_processed(
+    root: str | os.PathLike,
+    objects: Sequence[str] | None = None,
+    gel: GelSpec | None = None,
+    mm_per_level: float = MM_PER_LEVEL,
+    stride: int = 1,
+    skipped: list[tuple[str, str]] | None = None,
+) -> tuple[PairSet, dict[str, object]]:
+    """(depth, real frame) pairs of the processed copy, and what was read.
+
+    ``meta["test"]`` marks the copy's test frames; ``meta`` also has object, trajectory (one
+    per log) and frame. The background of each object is its ``bgs_objects`` frame, or the
+    log's first listed frame when that file is absent (said in the returned info).
+    """
+    gel = gel or GelSpec()
+    base = processed_root(root)
+    if base is None:
+        raise TactileBenchError(
+            f"{root}: not Tactile-Diffusion's YCB-Slide copy (expected "
+            "dataset/<object>/dataset_<k>/{frames,frames_depth}/ in it or in its YCB-Slide/)"
+        )
+    data = base / "dataset"
+    names = sorted(
+        p.name for p in data.iterdir() if p.is_dir() and not is_hidden(p)
+    )  # the original skips the .zip/.sh files beside them
+    if objects is not None:
+        missing = sorted(set(objects) - set(names))
+        if missing:
+            raise TactileBenchError(f"{data}: no folder for objects {missing}")
+        names = [n for n in names if n in objects]
+    depths, reals, bgs = [], [], []
+    meta: dict[str, list[int]] = {"object": [], "trajectory": [], "frame": [], "test": []}
+    bg_index: list[int] = []
+    no_depth, sources = 0, {}
+    trajectory = 0
+    for o, name in enumerate(names):
+        logs = sorted(
+            (d for d in (data / name).glob("dataset_*") if d.is_dir()),
+            key=lambda d: (len(d.name), d.name),
+        )
+        released = released_background(base / "bgs", name)
+        for log in logs:
+            train, test = _read_split(log / "files_train_test.npz")
+            listed = [(f, 0) for f in train] + [(f, 1) for f in test]
+            listed = sorted(listed)[::stride]
+            kept = 0
+            for f, is_test in listed:
+                if not (log / "frames_depth" / f).is_file():
+                    no_depth += 1  # a mocap glitch touch_simulator.py removed
+                    continue
+                try:
+                    depth = read_mask(log / "frames_depth" / f, gel.size, weights_bgr_as_rgb=False)
+                    real = read_image(log / "frames" / f, gel.size)
+                except TactileBenchError as exc:
+                    if skipped is None:
+                        raise
+                    skipped.append((str(log / "frames" / f), str(exc)))
+                    continue
+                depths.append(torch.from_numpy((depth * mm_per_level).astype(np.float32))[None])
+                reals.append(real)
+                meta["object"].append(o)
+                meta["trajectory"].append(trajectory)
+                meta["frame"].append(int("".join(c for c in f if c.isdigit()) or 0))
+                meta["test"].append(is_test)
+                kept += 1
+            if kept:
+                if released is not None:
+                    bgs.append(read_image(released, gel.size))
+                    sources[name] = str(released.relative_to(base))
+                else:
+                    first = log / "frames" / listed[0][0]
+                    bgs.append(read_image(first, gel.size))
+                    sources[name] = "first frame of each log (no bgs/bg_<i>.jpg)"
+                bg_index += [len(bgs) - 1] * kept
+            trajectory += 1
+    if not depths:
+        raise TactileBenchError(f"{data}: no (frame, frames_depth) pairs")
+    pairs = PairSet(
+        depth=torch.stack(depths),
+        real=torch.stack(reals),
+        real_background=torch.stack(bgs),
+        real_bg_index=torch.tensor(bg_index),
+        meta={k: np.asarray(v, dtype=np.int64) for k, v in meta.items()},
+    )
+    info: dict[str, object] = {
+        "root": str(base),
+        "objects": names,
+        "listed_without_depth": no_depth,
+        "backgrounds": sources,
+        "mm_per_level": mm_per_level,
+    }
+    return pairs, info
