@@ -4,6 +4,18 @@ Entry point: ``python -m tactile_bench bench [--quick] [--diffusion CKPT]`` (``c
 or ``run.run_bench`` in-process.
 """
 
-from tactile_bench.bench.run import BenchConfig, run_bench
+from __future__ import annotations
+
+from typing import Any
 
 __all__ = ["BenchConfig", "run_bench"]
+
+
+def __getattr__(name: str) -> Any:
+    """``BenchConfig`` and ``run_bench`` on first use: the CLI registers ``bench`` without
+    importing Lightning, so a refused argument is answered in a second or two."""
+    if name in __all__:
+        from tactile_bench.bench import run
+
+        return getattr(run, name)
+    raise AttributeError(name)

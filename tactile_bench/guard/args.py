@@ -148,6 +148,9 @@ OUTPUTS: dict[tuple[str, str], Output] = {
     ("fit", "run_dir"): Output(folder=True, lock=False),
 }
 
+#: arguments named like outputs that a command only reads
+READ_ONLY: frozenset[tuple[str, str]] = frozenset({("read", "run_dir")})
+
 
 def command_name(ns: argparse.Namespace) -> str:
     """``data ycb-slide`` for a nested subcommand, else the command."""
@@ -199,15 +202,29 @@ ESTIMATES: dict[str, Callable[[argparse.Namespace], None]] = {
 
 
 def check_arguments(ns: argparse.Namespace) -> None:
-    """Every rule that applies to ``ns``: values, then estimates, then outputs."""
+    """Every rule that applies to ``ns``: values, then estimates, then outputs.
+
+    A count above its bound is reported after the command's memory estimate, so an absurd
+    size says what it would have allocated against the limit.
+    """
+    too_large: TactileBenchError | None = None
     for dest, value in vars(ns).items():
         rule = ARG_RULES.get(dest)
-        if rule is not None and value is not None:
+        if rule is None or value is None:
+            continue
+        try:
             rule(dest, value)
+        except TactileBenchError as exc:
+            above = isinstance(rule, Count) and isinstance(value, int) and value > rule.high
+            if not above:
+                raise
+            too_large = too_large or exc
     command = command_name(ns)
     estimate = ESTIMATES.get(command)
     if estimate is not None:
         estimate(ns)
+    if too_large is not None:
+        raise too_large
     for (cmd, dest), spec in OUTPUTS.items():
         value = getattr(ns, dest, None)
         if cmd != command or value is None:
