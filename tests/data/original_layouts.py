@@ -23,6 +23,7 @@ has none. The masks are smaller than the frames and some are stored as colour JP
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -125,3 +126,110 @@ def write_ycb_processed(datasets: Path, frames: int = 6, logs: int = 2) -> Path:
             test = names[-1:]
             np.savez(log / "files_train_test.npz", train=names[:-1], test=test)
     return root
+
+
+# ---------------------------------------------------------------- YCB-Slide, the orientation
+#: Tactile-Diffusion's TACTO camera (``digit_render.py``): cam = gel @ T(z = cam_dist - press)
+#: @ fix_transform (``euler2matrix([-90, 0, 90], xyz="zyx", degrees=True)``) @ the camera's zero
+#: pose of ``config_digit_shadow.yml`` (orientation [90, 0, -90], "xyz" Euler angles, the
+#: renderer's ``euler2matrix``: scipy ``from_euler``). pyrender draws camera +x to the right
+#: and camera +y up. ``update_camera_pose_from_matrix`` is taken to compose like TACTO's
+#: ``update_camera_pose`` (pose @ camera zero pose): it is not in the stored copies.
+def tacto_camera_axes() -> np.ndarray:
+    """(3, 3): the TACTO camera's x, y, z axes (columns) in the gel frame."""
+    from scipy.spatial.transform import Rotation
+
+    fix = Rotation.from_euler("zyx", [-90, 0, 90], degrees=True).as_matrix()
+    zero = Rotation.from_euler("xyz", [90, 0, -90], degrees=True).as_matrix()
+    return fix @ zero
+
+
+def original_frame_depth(
+    surface: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    wh: tuple[int, int],
+    gel_mm: tuple[float, float] = (18.0, 24.0),
+) -> np.ndarray:
+    """The penetration (mm, h x w) as a real frame shows it, by the original's convention:
+    TACTO's map seen by its camera, then ``save_hm``'s flip of both axes.
+
+    ``surface(gx, gy)``: penetration at gel-frame point (mm; YCB-Slide's gel frame, z out of
+    the object).
+    """
+    w, h = wh
+    axes = tacto_camera_axes()
+    u = (np.arange(w) + 0.5) / w - 0.5
+    v = (np.arange(h) + 0.5) / h - 0.5
+    cam_x = np.broadcast_to(u[None, :] * gel_mm[0], (h, w))  # columns: camera +x
+    cam_y = np.broadcast_to(-v[:, None] * gel_mm[1], (h, w))  # rows: camera -y (image down)
+    gx = axes[0, 0] * cam_x + axes[0, 1] * cam_y
+    gy = axes[1, 0] * cam_x + axes[1, 1] * cam_y
+    raw = surface(gx, gy)  # TACTO's heightmap, as its camera sees it
+    return raw[::-1, ::-1].copy()  # save_hm: cv2.flip(., 0), cv2.flip(., 1)
+
+
+def write_ycb_slide_wedge(
+    root: Path,
+    object_name: str = "004_sugar_box",
+    n_frames: int = 6,
+    glitch: int = 3,
+    slope: tuple[float, float] = (0.03, -0.02),
+    yaw_deg: float = 25.0,
+    press_mm: float = 0.7,
+) -> dict[str, object]:
+    """A YCB-Slide release log (``real/<object>/dataset_0``: ``synced_data.npy``,
+    ``frames/frame_%07d.jpg``; ``real/<object>/alignment.npy``; ``obj_models/<object>/
+    nontextured.stl`` in metres; ``bgs/bg_<i>.jpg``) over a WEDGE: a box whose top face
+    rises by ``slope`` (dz/dx, dz/dy), so each frame's contact is asymmetric.
+
+    Frames are the no-contact frame plus the penetration drawn by ``original_frame_depth``.
+    Frame ``glitch`` is a mocap jump (DIGIT 0.4 m off), which ``clean_up_optitrack`` drops
+    (it flags a step of more than 10x the running mean, so only after 11 frames).
+    """
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    a, b = slope
+    lx, ly = 0.08, 0.06
+    corners = [(x, y) for x in (-lx / 2, lx / 2) for y in (-ly / 2, ly / 2)]
+    points = [(x, y, -0.02) for x, y in corners] + [
+        (x, y, 0.02 + a * x + b * y) for x, y in corners
+    ]
+    obj_dir = root / "obj_models" / object_name
+    obj_dir.mkdir(parents=True, exist_ok=True)
+    trimesh.convex.convex_hull(np.asarray(points)).export(obj_dir / "nontextured.stl")
+    real = root / "real" / object_name
+    log = real / "dataset_0"
+    (log / "frames").mkdir(parents=True, exist_ok=True)
+    np.save(real / "alignment.npy", np.eye(4))
+    yaw = np.deg2rad(yaw_deg)
+    rot = Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
+    xs = np.linspace(-0.01, 0.01, n_frames)
+    gel = np.tile(np.eye(4), (n_frames, 1, 1))
+    gel[:, :3, :3] = rot
+    gel[:, 0, 3], gel[:, 1, 3] = xs, 0.004
+    gel[:, 2, 3] = 0.02 + a * xs + b * 0.004  # on the slanted top, z out of the object
+    cam = gel.copy()
+    cam[:, :3, 3] += cam[:, :3, 2] * 0.022  # the DIGIT pose is its camera's, 22 mm behind
+    cam[glitch, :3, 3] += 0.4
+    pq = np.concatenate([cam[:, :3, 3], Rotation.from_matrix(cam[:, :3, :3]).as_quat()], 1)
+    obj = np.tile([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (n_frames, 1))
+    np.save(log / "synced_data.npy", {"poses": {"DIGIT": pq, object_name: obj}})
+    w, h = FRAME_WH
+    bg = np.full((h, w, 3), (120, 110, 100), np.float64)
+    (root / "bgs").mkdir(parents=True, exist_ok=True)
+    Image.fromarray(bg.astype(np.uint8)).save(root / "bgs" / "bg_0.jpg", quality=95)
+    # the surface over gel point (gx, gy) mm, along the gel normal: a planar top, so the same
+    # for every frame; the gel centre touches it and is pressed press_mm
+    ca, sa = np.cos(yaw), np.sin(yaw)
+
+    def penetration(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+        ox, oy = ca * gx - sa * gy, sa * gx + ca * gy  # gel -> object axes (mm)
+        return np.maximum(0.0, press_mm + a * ox + b * oy)
+
+    depth = original_frame_depth(penetration, FRAME_WH)
+    for i in range(n_frames):
+        frame = bg + depth[..., None] * np.array([60.0, 30.0, -40.0])
+        Image.fromarray(np.clip(frame, 0, 255).astype(np.uint8)).save(
+            log / "frames" / f"frame_{i:07d}.jpg", quality=95
+        )
+    return {"depth": depth, "glitch": glitch}
