@@ -64,6 +64,8 @@ def test_recipe_reads_the_tactile_diffusion_layout(tmp_path: Path) -> None:
     rows = {r["row"]: r for r in results["rows"]}
     assert rows["real"]["extra"]["n_test"] == 12  # the release's real/color frames
     assert rows["sim"]["sim_accuracy"] is None  # no sim images of real/color frames
+    # the report says what the test set was: the release's real frames, not surrogate ones
+    assert "real DIGIT frames of the braille release" in (run_dir / "results.md").read_text()
 
 
 def test_real_row_on_the_simulated_grid_is_refused(

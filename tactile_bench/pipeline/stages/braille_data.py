@@ -161,11 +161,12 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         for i in range(min(6, len(chars)))
         if bool((test.labels == i).any())
     ]
+    real_name = "surrogate real" if simulated else "real"
     sample_grid_png(
-        {"depth": test.depth[picks], "sim": test.sim[picks], "surrogate real": test.real[picks]},
+        {"depth": test.depth[picks], "sim": test.sim[picks], real_name: test.real[picks]},
         [chars[int(test.labels[i])] for i in picks],
         ctx.directory / "preview.png",
-        title="braille contacts: depth | sim | surrogate real",
+        title=f"braille contacts: depth | sim | {real_name}",
     )
     outputs["preview"] = "preview.png"
     real = config.real_sensor if config.source == "surrogate" else config.source

@@ -338,6 +338,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         "n_train": int(len(labels) - len(held_idx)),
         "n_finetune": len(pool) if pool is not None else 0,  # real pairs it fine-tuned on
         "n_test": int(len(test)),
+        # a real-data braille stage records its source: its test frames are real DIGIT frames
+        "tested_on": "real" if ctx.input("data").metrics.get("source_root") else None,
         **{
             m: _summary([s["test"][m] for s in per_seed])
             for m in ("accuracy", "precision", "recall")

@@ -50,6 +50,7 @@ def _row(result: StageResult) -> dict[str, Any]:
             "n_train": summary["n_train"],
             "n_test": summary["n_test"],
             "heldout_accuracy": summary["heldout_accuracy"],
+            "tested_on": summary.get("tested_on"),  # "real", or None: surrogate frames
         },
         "per_class": [s["test"]["per_class_accuracy"] for s in metrics["per_seed"]],
     }
