@@ -30,6 +30,7 @@ from bad_input_fixtures import (
     ycb_layout,
     ycb_recipe,
 )
+from bad_input_guard_cases import GUARD_CASES
 from PIL import Image
 
 
@@ -44,6 +45,7 @@ class Case:
     expect_exit: int = 2
     env: Callable[[Path], dict[str, str]] | None = None
     slow: bool = False  # renders meshes or runs stages: left out of the in-process test
+    group: str = "files and layouts"  # the class of bad input (issue 23's classes, ...)
 
 
 def _td(tmp: Path) -> Path:
@@ -338,4 +340,10 @@ CASES: list[Case] = [
     Case("recipe: profile with an unknown key", c_recipe_profile_key, "colour"),
     Case("ground: truncated reference frame", c_ground_background, "digit_background"),
     Case("ground: calibration table lacks arrays", c_ground_polycalib, "digit_polycalib.npz"),
+]
+
+# issue 23's classes: absurd sizes, nonsense, outputs, values, duplicates, environment
+CASES += [
+    Case(kind, build, names, group=group, **extra)  # type: ignore[arg-type]
+    for group, kind, build, names, extra in GUARD_CASES
 ]

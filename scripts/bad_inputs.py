@@ -85,13 +85,15 @@ def run(case: Case, tmp: Path) -> Outcome:
 def table(outcomes: list[Outcome]) -> str:
     """The markdown table of docs/results/bad_inputs.md."""
     rows = [
-        "| # | bad input | command | exit | error line (stderr) | traceback? | as expected? |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| # | class | bad input | command | exit | error line (stderr) | traceback? | "
+        "as expected? |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for i, o in enumerate(outcomes, 1):
         line = o.line.replace("|", "\\|")
+        command = o.command.replace("|", "\\|")
         rows.append(
-            f"| {i} | {o.case.kind} | `{o.command}` | {o.code} | {line} | "
+            f"| {i} | {o.case.group} | {o.case.kind} | `{command}` | {o.code} | {line} | "
             f"{'yes' if o.traceback else 'no'} | {'yes' if o.ok else '**NO**'} |"
         )
     return "\n".join(rows) + "\n"

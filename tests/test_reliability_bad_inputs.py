@@ -28,12 +28,21 @@ def _load(name: str) -> ModuleType:
 
 
 _load("bad_input_fixtures")
+_load("bad_input_guard_cases")
 SCRIPT = _load("bad_input_cases")
 FAST = {c.kind: c for c in SCRIPT.CASES if not c.slow and c.env is None}
 
 
 def test_the_script_covers_at_least_twenty_kinds() -> None:
     assert len(SCRIPT.CASES) >= 20 and len(FAST) >= 20
+
+
+def test_every_class_of_issue_23_has_many_kinds() -> None:
+    groups: dict[str, int] = {}
+    for case in SCRIPT.CASES:
+        groups[case.group] = groups.get(case.group, 0) + 1
+    assert len(SCRIPT.CASES) >= 100
+    assert len(groups) >= 7 and min(groups.values()) >= 8, groups
 
 
 @pytest.mark.parametrize("kind", sorted(FAST))
