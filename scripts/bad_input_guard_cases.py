@@ -17,7 +17,15 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from bad_input_fixtures import BRAILLE_STAGE, fit_args, frame, paired_layout, png, write_recipe
+from bad_input_fixtures import (
+    BRAILLE_STAGE,
+    braille_layout,
+    fit_args,
+    frame,
+    paired_layout,
+    png,
+    write_recipe,
+)
 
 SIZES = "absurd sizes"
 NONSENSE = "nonsense that exited 0"
@@ -65,6 +73,17 @@ def c_paired_large(tmp: Path) -> list[str]:
     root = paired_layout(tmp / "paired")
     png_header_only(root / "sim" / "c0.png", 6000, 5000)  # under Pillow's own bomb limit
     return diagnose(tmp, root)
+
+
+def c_td_bomb(tmp: Path) -> list[str]:
+    root = braille_layout(tmp / "td")
+    png_header_only(root / "real_fine_tuning/color/a/a_0.png", 6000, 5000)
+    return ["check", str(root)]
+
+
+def c_ground_bomb(tmp: Path) -> list[str]:
+    png_header_only(tmp / "real" / "digit_background_240x320.jpg", 30000, 30000)
+    return ["ground", "--real-dir", str(tmp / "real")]
 
 
 def c_paired_depth_bomb(tmp: Path) -> list[str]:
@@ -456,6 +475,8 @@ GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     (SIZES, "paired: a 30000 x 30000 PNG of a few KB", c_paired_bomb, "c1.png", {}),
     (SIZES, "paired: a 6000 x 5000 PNG (below Pillow's bomb limit)", c_paired_large, "c0.png", {}),
     (SIZES, "paired: a 20000 x 20000 depth PNG", c_paired_depth_bomb, "c0.png", {}),
+    (SIZES, "Tactile-Diffusion layout: a 6000 x 5000 frame", c_td_bomb, "a_0.png", {}),
+    (SIZES, "ground: a 30000 x 30000 reference frame", c_ground_bomb, "digit_background", {}),
     (SIZES, "recipe: nested aliases (billion laughs)", c_recipe_bomb, "r.yaml", {}),
     (SIZES, "recipe: billion laughs inside a stage config", c_recipe_bomb_in_config, "r.yaml", {}),
     (SIZES, "profile: nested aliases", c_profile_bomb, "p.yaml", {}),

@@ -17,6 +17,7 @@ import torch
 from PIL import Image
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.images import open_header
 
 #: colour modes that hold a 3-channel RGB frame (a palette PNG expands to RGB)
 RGB_MODES = ("RGB", "P")
@@ -57,9 +58,11 @@ def open_image(path: Path) -> Image.Image:
     """The fully decoded image, or a one-line error saying what is wrong with the file."""
     path = Path(path)
     try:
-        with Image.open(path) as im:
+        with open_header(path) as im:  # size and pixel count from the header, then decode
             im.load()  # decode now: a truncated file fails here
             return im.copy()
+    except TactileBenchError:
+        raise
     except FileNotFoundError:
         raise TactileBenchError(f"{path}: file not found") from None
     except IsADirectoryError:

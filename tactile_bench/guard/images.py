@@ -42,7 +42,9 @@ def open_header(path: str | os.PathLike[str], max_pixels: int = MAX_PIXELS) -> I
         ) from None
     except Exception as exc:  # Pillow raises OSError, SyntaxError, ValueError ... on bad bytes
         reason = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
-        raise TactileBenchError(f"{path}: not a readable image ({reason})") from None
+        raise TactileBenchError(
+            f"{path}: not a readable image (corrupt or truncated? {reason})"
+        ) from None
     w, h = im.size
     if w * h > max_pixels:
         im.close()
