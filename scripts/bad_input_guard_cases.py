@@ -292,6 +292,11 @@ def c_trainer_negative(tmp: Path) -> list[str]:
     return fit_args(tmp, BRAILLE_STAGE, extra="trainer: {max_epochs: -1}\n")
 
 
+def trainer(settings: str) -> Callable[[Path], list[str]]:
+    """A recipe whose ``trainer:`` Lightning would refuse only at the first fit."""
+    return lambda tmp: fit_args(tmp, BRAILLE_STAGE, extra=f"trainer: {settings}\n")
+
+
 def c_ablation_seed(tmp: Path) -> list[str]:
     stages = BRAILLE_STAGE + (
         "- {name: c, kind: classify, inputs: {data: braille}, config: {row: sim, "
@@ -663,6 +668,18 @@ GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     ),
     (VALUES, "recipe: unknown trainer key", c_trainer_key, "max_epoch", {}),
     (VALUES, "recipe: trainer max_epochs -1", c_trainer_negative, "max_epochs", {}),
+    (VALUES, "recipe: trainer precision bf17", trainer("{precision: bf17}"), "precision", {}),
+    (VALUES, "recipe: trainer strategy nope", trainer("{strategy: nope}"), "strategy", {}),
+    (VALUES, "recipe: trainer devices 0", trainer("{devices: 0}"), "devices", {}),
+    (VALUES, "recipe: trainer accelerator tpu", trainer("{accelerator: tpu}"), "trainer", {}),
+    (VALUES, "recipe: trainer callbacks 3", trainer("{callbacks: 3}"), "callbacks", {}),
+    (
+        VALUES,
+        "recipe: trainer default_root_dir",
+        trainer("{default_root_dir: 5}"),
+        "default_root_dir",
+        {},
+    ),
     (
         VALUES,
         "real-translators --cgan-steps 0",

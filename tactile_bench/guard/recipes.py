@@ -51,6 +51,47 @@ def check_trainer(trainer: dict[str, Any], where: str) -> None:
     for key in (*_POSITIVE_TRAINER_KEYS, EVERY_KEY):
         if key in trainer and trainer[key] is not None:
             check_int(f"{where}.trainer.{key}", trainer[key], 1, MAX_COUNT)
+    for key in _OBJECT_TRAINER_KEYS & set(trainer):
+        raise TactileBenchError(
+            f"{where}.trainer.{key}: set by tactile_bench for each stage, not by a recipe"
+        )
+    try_trainer(trainer, where)
+
+
+#: Trainer arguments tactile_bench passes itself: Python objects, and each stage's folder
+_OBJECT_TRAINER_KEYS = frozenset({"logger", "callbacks", "plugins", "default_root_dir"})
+
+
+def try_trainer(trainer: dict[str, Any], where: str) -> None:
+    """Build a ``lightning.Trainer`` from the settings now: a wrong precision, strategy,
+    accelerator or device count fails here, not after the stages before its first fit."""
+    import logging
+
+    import lightning as L
+
+    from tactile_bench.training import EVERY_KEY
+
+    settings = {k: v for k, v in trainer.items() if k != EVERY_KEY}
+    settings |= {
+        "logger": False,
+        "enable_checkpointing": False,
+        "enable_progress_bar": False,
+        "enable_model_summary": False,
+    }
+    quiet = [logging.getLogger(n) for n in ("lightning.pytorch", "lightning.fabric")]
+    levels = [q.level for q in quiet]
+    for q in quiet:
+        q.setLevel(logging.ERROR)  # its "GPU available: False" lines are for real fits
+    try:
+        L.Trainer(**settings)
+    except Exception as exc:  # Lightning raises ValueError, MisconfigurationException, ...
+        reason = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+        raise TactileBenchError(
+            f"{where}.trainer: lightning.Trainer refuses it: {reason}"
+        ) from None
+    finally:
+        for q, level in zip(quiet, levels, strict=True):
+            q.setLevel(level)
 
 
 def _walk(value: Any, key: str, where: str) -> None:
