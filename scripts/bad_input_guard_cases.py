@@ -425,6 +425,58 @@ def c_quitter_fit(tmp: Path) -> list[str]:
     return fit_args(tmp, stages + "config: {translator: quitter}}\n")
 
 
+def c_long_out(tmp: Path) -> list[str]:
+    return diagnose(tmp, paired_layout(tmp / "paired"))[:3] + [str(tmp / ("x" * 300))]
+
+
+def c_long_input(tmp: Path) -> list[str]:
+    return diagnose(tmp, tmp / ("p" * 300))
+
+
+def c_non_utf8_name(tmp: Path) -> list[str]:
+    root = paired_layout(tmp / "paired")
+    bad = os.fsencode(root / "real") + b"/\xff\xfe.txt"
+    with open(bad, "wb") as handle:
+        handle.write(b"x")
+    return diagnose(tmp, root)
+
+
+def c_nfd_twins(tmp: Path) -> list[str]:
+    root = paired_layout(tmp / "paired")
+    for part in ("depth", "sim", "real"):
+        data = (root / part / "c0.png").read_bytes()
+        (root / part / "caf\u00e9.png").write_bytes(data)  # NFC
+        (root / part / "cafe\u0301.png").write_bytes(data)  # NFD: the same name to a reader
+    return diagnose(tmp, root)
+
+
+def c_no_contact(tmp: Path) -> list[str]:
+    root = paired_layout(tmp / "paired", n=6)
+    for i in range(6):
+        png(root / "depth" / f"c{i}.png", np.zeros((32, 32), np.uint16))
+    return diagnose(tmp, root)
+
+
+def c_recipe_nan(tmp: Path) -> list[str]:
+    stages = BRAILLE_STAGE + (
+        "- {name: c, kind: classify, inputs: {data: braille}, "
+        "config: {row: sim, train_images: sim, classifier: {lr: .nan}}}\n"
+    )
+    return fit_args(tmp, stages)
+
+
+def c_recipe_long_name(tmp: Path) -> list[str]:
+    return fit_args(tmp, BRAILLE_STAGE.replace("name: braille", "name: " + "b" * 300))
+
+
+def c_recipe_batch(tmp: Path) -> list[str]:
+    stages = BRAILLE_STAGE + (
+        "- {name: t, kind: translate, inputs: {data: braille}, "
+        "config: {translator: sim, batch_size: 9000000}}\n"
+    )
+    return fit_args(tmp, stages)
+
+
 A = args
 GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     # (class, kind, build, the error line must name, extra Case fields)
@@ -487,6 +539,22 @@ GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     (SIZES, "profile: nested aliases", c_profile_bomb, "p.yaml", {}),
     (SIZES, "recipe: 20000 nested brackets", c_recipe_nesting, "r.yaml", {}),
     (SIZES, "recipe: a 3 MB file", c_recipe_huge_file, "r.yaml", {}),
+    (SIZES, "recipe: a translate batch of 9 million", c_recipe_batch, "batch_size", {}),
+    (SIZES, "read: a word of 100000 characters", A("read", "--word", "A" * 100000), "--word", {}),
+    (
+        SIZES,
+        "read: a step of a nanometre",
+        A("read", "--word", "DIGIT", "--step-mm", "0.000001"),
+        "--step-mm",
+        {},
+    ),
+    (
+        SIZES,
+        "export-pairs --real-presses at 4096 px",
+        A("export-pairs", "--real-presses", "gelsight", "--size", "4096", "--out", "{tmp}/o"),
+        "--size",
+        {"env": lambda tmp: {"TACTILE_BENCH_MEMORY_LIMIT": "8G"}},
+    ),
     (SIZES, "recipe: a recursive alias", c_recipe_recursive, "r.yaml", {}),
     (SIZES, "recipe: 9 million corpus pairs at 256 px", c_recipe_big_corpus, "n_pairs", {}),
     (
@@ -696,6 +764,10 @@ GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     ),
     (DUPES, "paired: label folders number_sign and %23", c_label_aliases, "c0.png", {}),
     (DUPES, "paired: X.PNG beside X.png", c_case_twins, "C0.PNG", {}),
+    (DUPES, "paired: one name in NFC and NFD", c_nfd_twins, "caf", {}),
+    (DUPES, "paired: no contact in any pair", c_no_contact, "no pair has any contact", {}),
+    (DUPES, "recipe: a NaN learning rate", c_recipe_nan, "lr", {}),
+    (DUPES, "recipe: a stage name of 300 characters", c_recipe_long_name, "300 characters", {}),
     (DUPES, "paired: a depth of 65 mm", c_depth_65mm, "c1.png", {}),
     (DUPES, "check: a paired depth of 65 mm", c_check_depth_65mm, "c0.png", {}),
     (DUPES, "paired: 1 x 1 images", c_tiny_images, "c0.png", {}),
@@ -712,6 +784,9 @@ GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     (DUPES, "recipe: a config key written twice", c_recipe_dup_config_key, "n_test", {}),
     (DUPES, "profile: a key written twice", c_profile_dup_key, "effects", {}),
     (ENV, "recipe is a FIFO", c_fifo_recipe, "r.yaml", {}),
+    (ENV, "--out name longer than the file system takes", c_long_out, "too long", {}),
+    (ENV, "input folder name longer than the file system takes", c_long_input, "pppp", {}),
+    (ENV, "a file name that is not UTF-8 in the pairs", c_non_utf8_name, "\\udcff", {}),
     (ENV, "profile is a FIFO", c_fifo_profile, "p.yaml", {}),
     (ENV, "recipe is a folder", c_recipe_folder, "r.yaml", {}),
     (ENV, "recipe is a device (/dev/zero)", c_recipe_device, "/dev/zero", {}),

@@ -413,6 +413,10 @@ def main(args: list[str] | None = None) -> int:
     # Freed tensor memory stays in the process for the next tensor instead of being faulted
     # in afresh (tactile_bench.allocator: ~8% more braille contacts/s on two threads).
     keep_freed_memory()
+    for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 prints escaped
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            reconfigure(errors="backslashreplace")
     parser = build_parser()
     try:
         ns = parser.parse_args(args)
@@ -439,6 +443,17 @@ def main(args: list[str] | None = None) -> int:
         return 0
     except TactileBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except OSError as exc:  # the machine's answer about a file: a full disk, a name too long
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except MemoryError:
+        print(
+            "error: out of memory; lower the sizes or counts (TACTILE_BENCH_MEMORY_LIMIT sets "
+            "the limit the checks use)",
+            file=sys.stderr,
+        )
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print(

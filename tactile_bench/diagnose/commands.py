@@ -103,6 +103,10 @@ def _cmd_diagnose(ns: argparse.Namespace) -> int:
     check_candidates(ns.candidates)
     layout, base = detect_layout(ns.paired_dir)
     data = load_paired(ns.paired_dir, size=ns.size)
+    if not bool((data.depth > 0).any()):  # no contact anywhere: no effect can be measured
+        raise TactileBenchError(
+            f"{ns.paired_dir}: no pair has any contact (depth 0 everywhere): nothing to diagnose"
+        )
     if bool((data.real == data.sim).all()):  # nothing to explain: say so, select nothing
         raise TactileBenchError(
             f"{ns.paired_dir}: the real images equal the sim images in all {len(data)} pairs: "

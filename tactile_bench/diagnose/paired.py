@@ -26,6 +26,7 @@ import json
 import os
 import shutil
 import tempfile
+import unicodedata
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -202,7 +203,10 @@ def _listing(folder: Path) -> dict[str, tuple[str, Path]]:
             raise TactileBenchError(f"{path}: not a .png file (the paired layout holds PNGs)")
         # two files that are one pair to a reader (X.PNG beside X.png; "#" as number_sign
         # and %23) would be read twice: write_paired refuses them, so does the reader
-        ident = (label, path.stem.casefold())
+        ident = (
+            unicodedata.normalize("NFC", label),
+            unicodedata.normalize("NFC", path.stem).casefold(),
+        )
         if ident in seen:
             raise TactileBenchError(
                 f"{path}: the same pair as {seen[ident]} (label {label!r}, name "

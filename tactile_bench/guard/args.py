@@ -94,6 +94,19 @@ class Names:
         check_unique(flag(dest), value)
 
 
+@dataclass(frozen=True)
+class Text:
+    """A string of at most ``max_len`` characters (a word to render, not a book)."""
+
+    max_len: int
+
+    def __call__(self, dest: str, value: object) -> None:
+        if isinstance(value, str) and len(value) > self.max_len:
+            raise TactileBenchError(
+                f"{flag(dest)}: {len(value)} characters; at most {self.max_len}"
+            )
+
+
 Rule = Callable[[str, object], None]
 
 #: every numeric or list argument of every command, by its ``dest``
@@ -120,6 +133,7 @@ ARG_RULES: dict[str, Rule] = {
     "candidates": Names(),
     "only": Names(),
     "force": Names(nonempty=False),
+    "word": Text(200),
 }
 
 
@@ -167,9 +181,26 @@ def _pairs_estimate(key: str, n: int, size: int, out: str | None) -> None:
         check_disk(key, what, pixels * DISK_PER_PAIR_PIXEL, Path(out))
 
 
+#: the most presses a real-press set holds (taxim's GelSight pack: 48)
+MAX_REAL_PRESSES = 48
+
+
 def _export_pairs(ns: argparse.Namespace) -> None:
     if ns.generate is not None:
         _pairs_estimate(f"--generate {ns.generate} --size {ns.size}", ns.generate, ns.size, ns.out)
+    elif ns.real_presses is not None:
+        _pairs_estimate(f"--size {ns.size}", MAX_REAL_PRESSES, ns.size, ns.out)
+
+
+def _read(ns: argparse.Namespace) -> None:
+    """Frames of the slide: the strip's length over the step, each a 64 x 64 contact."""
+    from tactile_bench.geometry.braille import BrailleSpec
+    from tactile_bench.read.strip import CELL_PITCH_RATIO
+
+    pitch = ns.pitch_mm or CELL_PITCH_RATIO * BrailleSpec().dot_spacing_mm
+    frames = (len(ns.word) + 2) * pitch / ns.step_mm
+    what = f"{frames:.0f} frames ({len(ns.word)} cells of {pitch:g} mm every {ns.step_mm:g} mm)"
+    check_memory("--word, --step-mm", what, frames * 64 * 64 * BYTES_PER_PAIR_PIXEL)
 
 
 def _data_ycb(ns: argparse.Namespace) -> None:
@@ -198,6 +229,7 @@ ESTIMATES: dict[str, Callable[[argparse.Namespace], None]] = {
     "validate-diagnosis": _validate_diagnosis,
     "real-translators": _real_translators,
     "render": _render,
+    "read": _read,
 }
 
 

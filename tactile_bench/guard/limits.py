@@ -75,11 +75,14 @@ def check_memory(key: str, what: str, estimate: float) -> None:
     """Refuse ``key`` when ``what`` would need more than :func:`memory_limit` bytes."""
     limit = memory_limit()
     if estimate > limit:
-        source = MEMORY_LIMIT_ENV if os.environ.get(MEMORY_LIMIT_ENV) else "3/4 of this machine's"
+        source = (
+            f"set by {MEMORY_LIMIT_ENV}"
+            if os.environ.get(MEMORY_LIMIT_ENV)
+            else f"3/4 of this machine's memory; set {MEMORY_LIMIT_ENV} to change it"
+        )
         raise TactileBenchError(
             f"{key}: {what} would need about {format_bytes(estimate)} of memory, more than "
-            f"the limit of {format_bytes(limit)} ({source} memory; set {MEMORY_LIMIT_ENV} "
-            "to change it)"
+            f"the limit of {format_bytes(limit)} ({source})"
         )
 
 

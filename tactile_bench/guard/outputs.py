@@ -28,8 +28,15 @@ from tactile_bench.errors import TactileBenchError
 log = logging.getLogger("tactile_bench")
 
 
-def _nearest_existing(path: Path) -> Path:
+def _nearest_existing(path: Path, key: str) -> Path:
     """``path`` or its closest ancestor that exists; an ancestor that is a file is an error."""
+    try:
+        return _walk_up(path)
+    except OSError as exc:  # a name too long, a loop of links, an unreadable parent
+        raise TactileBenchError(f"{key} {path}: {exc.strerror or exc}") from None
+
+
+def _walk_up(path: Path) -> Path:
     here = path
     while True:
         if here.exists():
@@ -58,7 +65,7 @@ def check_output_dir(path: str | os.PathLike[str], key: str) -> Path:
     path = Path(path)
     if str(path) == "":
         raise TactileBenchError(f"{key}: an empty path")
-    base = _nearest_existing(path)
+    base = _nearest_existing(path, key)
     if not base.is_dir():
         if base == path:
             raise TactileBenchError(f"{key} {path}: exists and is not a folder")
@@ -79,7 +86,7 @@ def check_output_file(path: str | os.PathLike[str], key: str, suffixes: Sequence
         raise TactileBenchError(f"{key} {path}: is a folder; give a file name")
     if path.exists() and not path.is_file():
         raise TactileBenchError(f"{key} {path}: exists and is not a regular file")
-    base = _nearest_existing(path.parent if str(path.parent) else Path("."))
+    base = _nearest_existing(path.parent if str(path.parent) else Path("."), key)
     if not base.is_dir():
         raise TactileBenchError(f"{key} {path}: lies under {base}, which is a file")
     _probe(base, key, path)

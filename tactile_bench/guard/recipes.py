@@ -9,6 +9,7 @@ one ``lightning.Trainer`` takes (found now, not after the earlier stages have ru
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Callable
 from functools import lru_cache
 from typing import Any
@@ -21,6 +22,10 @@ from tactile_bench.guard.limits import check_int, check_memory, check_seed, chec
 _COUNT_SUFFIXES = ("_pairs", "_steps", "_epochs", "_images", "batch_size", "samples")
 #: config keys holding lists that must not repeat an entry
 _UNIQUE_KEYS = frozenset({"chars", "objects", "candidates", "sets", "seeds"})
+#: bytes one 64 x 64 image of a batch takes through a network (activations included)
+_BATCH_BYTES = 64 * 64 * 3 * 4 * 16
+#: longest recipe or stage name: it becomes a folder name with a hash appended
+MAX_NAME = 100
 #: trainer keys that are counts and must be positive (Lightning reads -1 as "no limit")
 _POSITIVE_TRAINER_KEYS = ("max_epochs", "max_steps", "min_epochs", "min_steps")
 
@@ -107,6 +112,11 @@ def _walk(value: Any, key: str, where: str) -> None:
     counted = name.startswith("n_") or name.endswith(_COUNT_SUFFIXES)
     if counted and isinstance(value, int) and not isinstance(value, bool):
         check_int(f"{where}.{key}", value, 0, MAX_COUNT)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise TactileBenchError(f"{where}.{key}: must be a finite number, got {value}")
+    if name.endswith("batch_size") and isinstance(value, int) and value > 0:
+        # one batch of 64 x 64 RGB floats through a network holds ~16 such tensors
+        check_memory(f"{where}.{key}", f"a batch of {value} images", float(value) * _BATCH_BYTES)
     if isinstance(value, dict):
         for k, v in value.items():
             _walk(v, f"{key}.{k}", where)
@@ -149,6 +159,12 @@ STAGE_RULES: dict[str, Callable[[Any, str], None]] = {
     "braille_data": _braille_data,
     "ycb_slide_data": _ycb_slide_data,
 }
+
+
+def check_name(name: str, where: str) -> None:
+    """A recipe or stage name short enough to be a folder name (with a hash appended)."""
+    if len(name) > MAX_NAME:
+        raise TactileBenchError(f"{where}: a name of {len(name)} characters; at most {MAX_NAME}")
 
 
 def check_stage(kind: str, config: Any, where: str) -> None:

@@ -27,7 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.limits import check_seed
-from tactile_bench.guard.recipes import check_stage, check_trainer
+from tactile_bench.guard.recipes import check_name, check_stage, check_trainer
 from tactile_bench.guard.safe_yaml import load_yaml_file, load_yaml_text
 from tactile_bench.pipeline.stages import STAGES, StageKind
 
@@ -144,6 +144,7 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
         raise TactileBenchError(f"{path}: {exc}") from None
 
     check_seed(f"{path}: seed", doc.seed)
+    check_name(doc.name, f"{path}: name")
     check_trainer(doc.trainer, str(path))
     run_dir = Path(doc.run_dir) if doc.run_dir else Path("runs") / doc.name
     recipe = Recipe(path, doc.name, doc.seed, run_dir, doc.trainer, [], doc.description)
@@ -152,6 +153,7 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
         where = f"{path}: stages[{index}] ({stage_doc.name})"
         if stage_doc.name in seen:
             raise TactileBenchError(f"{where}: duplicate stage name")
+        check_name(stage_doc.name, f"{where}.name")
         kind = STAGES.get(stage_doc.kind)
         if kind is None:
             raise TactileBenchError(
