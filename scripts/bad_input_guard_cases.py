@@ -477,6 +477,33 @@ def c_recipe_batch(tmp: Path) -> list[str]:
     return fit_args(tmp, stages)
 
 
+def c_out_is_input(tmp: Path) -> list[str]:
+    root = paired_layout(tmp / "paired")
+    return diagnose(tmp, root)[:3] + [str(root)]
+
+
+def c_export_over_source(tmp: Path) -> list[str]:
+    return ["export-pairs", str(tmp / "run" / "braille"), "--out", str(tmp), "--overwrite"]
+
+
+def c_fifo_checkpoint(tmp: Path) -> list[str]:
+    os.mkfifo(tmp / "cgan.pt")
+    from bad_input_fixtures import cgan_from
+
+    return fit_args(tmp, cgan_from(tmp / "cgan.pt"))
+
+
+def c_fifo_pairs_arg(tmp: Path) -> list[str]:
+    os.mkfifo(tmp / "pairs")
+    return diagnose(tmp, tmp / "pairs")
+
+
+def c_fifo_npz(tmp: Path) -> list[str]:
+    (tmp / "real").mkdir()
+    os.mkfifo(tmp / "real" / "digit_polycalib.npz")
+    return ["ground", "--real-dir", str(tmp / "real")]
+
+
 A = args
 GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     # (class, kind, build, the error line must name, extra Case fields)
@@ -666,6 +693,14 @@ GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     (OUTPUT, "real-translators --out is a file", c_rt_out_file, "f.txt", {}),
     (OUTPUT, "--out through a dangling symbolic link", c_dangling_out, "dangling", {}),
     (OUTPUT, "--out held by another running process", c_out_locked, "in use by process", {}),
+    (OUTPUT, "diagnose --out is the input folder", c_out_is_input, "holds the input", {}),
+    (
+        OUTPUT,
+        "export-pairs --overwrite over its own source",
+        c_export_over_source,
+        "holds the input",
+        {},
+    ),
     (
         VALUES,
         "export-pairs --seed -1",
@@ -784,6 +819,9 @@ GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
     (DUPES, "recipe: a config key written twice", c_recipe_dup_config_key, "n_test", {}),
     (DUPES, "profile: a key written twice", c_profile_dup_key, "effects", {}),
     (ENV, "recipe is a FIFO", c_fifo_recipe, "r.yaml", {}),
+    (ENV, "recipe's init_checkpoint is a FIFO", c_fifo_checkpoint, "cgan.pt", {}),
+    (ENV, "the paired folder argument is a FIFO", c_fifo_pairs_arg, "FIFO", {}),
+    (ENV, "ground: the calibration table is a FIFO", c_fifo_npz, "digit_polycalib.npz", {}),
     (ENV, "--out name longer than the file system takes", c_long_out, "too long", {}),
     (ENV, "input folder name longer than the file system takes", c_long_input, "pppp", {}),
     (ENV, "a file name that is not UTF-8 in the pairs", c_non_utf8_name, "\\udcff", {}),

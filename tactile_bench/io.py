@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.files import require_not_special
 
 
 def _current_umask() -> int:
@@ -92,6 +93,7 @@ def atomic_write_npz(path: Path, **arrays: Any) -> Path:
 
 def load_npz(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
     """Read the named arrays of an .npz, turning a missing/corrupt file into a one-line error."""
+    require_not_special(path, "data file")  # a FIFO would block np.load
     try:
         with np.load(path, allow_pickle=False) as data:
             missing = [k for k in keys if k not in data.files]

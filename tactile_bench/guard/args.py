@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.files import require_not_special
 from tactile_bench.guard.limits import (
     check_disk,
     check_int,
@@ -162,6 +163,29 @@ OUTPUTS: dict[tuple[str, str], Output] = {
     ("fit", "run_dir"): Output(folder=True, lock=False),
 }
 
+#: each command's input arguments an output folder must not hold (or be)
+INPUTS: dict[str, tuple[str, ...]] = {
+    "diagnose": ("paired_dir",),
+    "export-pairs": ("source",),
+    "bench": ("diffusion", "braille"),
+}
+
+
+def _check_not_holding_inputs(ns: argparse.Namespace, command: str, out: str, key: str) -> None:
+    """An output folder that is an input, or holds one, would be overwritten (or with
+    ``--overwrite``, deleted) by the work: refused."""
+    target = Path(os.path.abspath(out))
+    for dest in INPUTS.get(command, ()):
+        value = getattr(ns, dest, None)
+        if not value:
+            continue
+        source = Path(os.path.abspath(value))
+        if target == source or target in source.parents:
+            raise TactileBenchError(
+                f"{key} {out}: holds the input {value}; writing there would overwrite it"
+            )
+
+
 #: arguments named like outputs that a command only reads
 READ_ONLY: frozenset[tuple[str, str]] = frozenset({("read", "run_dir")})
 
@@ -239,6 +263,10 @@ def check_arguments(ns: argparse.Namespace) -> None:
     A count above its bound is reported after the command's memory estimate, so an absurd
     size says what it would have allocated against the limit.
     """
+    for dest, value in vars(ns).items():  # a FIFO or device given for any path blocks
+        for item in value if isinstance(value, list) else [value]:
+            if isinstance(item, str) and item:
+                require_not_special(item, flag(dest).lstrip("-").replace("-", " "))
     too_large: TactileBenchError | None = None
     for dest, value in vars(ns).items():
         rule = ARG_RULES.get(dest)
@@ -262,6 +290,7 @@ def check_arguments(ns: argparse.Namespace) -> None:
         if cmd != command or value is None:
             continue
         if spec.folder:
+            _check_not_holding_inputs(ns, command, value, flag(dest))
             check_output_dir(value, flag(dest))
         else:
             check_output_file(value, flag(dest), spec.suffixes)

@@ -22,6 +22,7 @@ from torch.utils.data import DataLoader, TensorDataset
 
 import tactile_bench
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.files import require_not_special
 from tactile_bench.hardware import Precision, trainer_precision
 from tactile_bench.io import atomic_torch_save
 from tactile_bench.training import (
@@ -203,6 +204,7 @@ class Translator(L.LightningModule):
     def load(cls, path: str | Path) -> Translator:
         """Load a checkpoint written by ``save``; anything else is a one-line error naming it."""
         path = Path(path)
+        require_not_special(path, "translator checkpoint")  # a FIFO would block torch.load
         try:
             payload = torch.load(path, map_location="cpu", weights_only=True)
         except FileNotFoundError:

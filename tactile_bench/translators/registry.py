@@ -16,6 +16,7 @@ from typing import Any
 import torch
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.files import require_not_special
 from tactile_bench.translators.base import Translator, TranslatorConfig
 
 GROUP = "tactile_bench.translators"
@@ -85,6 +86,7 @@ def create_translator(
 def load_checkpoint(path: str | Path) -> Translator:
     """Load a translator checkpoint of any registered translator (the file says which)."""
     path = Path(path)
+    require_not_special(path, "translator checkpoint")  # a FIFO would block torch.load
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
         name = payload["translator"]
