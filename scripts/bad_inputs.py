@@ -113,12 +113,27 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{flag} {outcome.code:>3} {outcome.seconds:5.1f} s  {case.kind}: {outcome.line}")
         outcomes.append(outcome)
     bad = [o for o in outcomes if not o.ok]
+    groups: dict[str, list[Outcome]] = {}
+    for o in outcomes:
+        groups.setdefault(o.case.group, []).append(o)
+    summary = "\n".join(
+        f"| {name} | {len(rows)} | {sum(not o.ok for o in rows)} | "
+        f"{max(o.seconds for o in rows):.1f} s |"
+        for name, rows in groups.items()
+    )
     header = (
         "# Bad inputs: what the command line says\n\n"
         "Made by `python scripts/bad_inputs.py` (each case is built in a temporary folder, "
         "`$TMP`, and run as a subprocess; `--threads 1`). Expected: exit code 2, one `error:` "
         "line naming the file or key at fault, no traceback; `list` with broken plugins "
         f"exits 0 and marks them. {len(outcomes)} kinds, {len(bad)} not as expected.\n\n"
+        "Every refusal comes from `tactile_bench.guard` before any work (argument rules by "
+        "name, memory and disk estimates, output checks and locks, the safe YAML loader, "
+        "image headers), from the readers' own checks, or from the CLI's last line of "
+        "defence (an `OSError` or `MemoryError` is one line too). The slowest answer is "
+        "the interpreter importing torch on a loaded 2-core machine.\n\n"
+        "| class | kinds | not as expected | slowest answer |\n| --- | --- | --- | --- |\n"
+        f"{summary}\n\n"
     )
     buffer = io.StringIO()
     buffer.write(header + table(outcomes))
