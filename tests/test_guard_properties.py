@@ -5,7 +5,9 @@ memory limit is lowered so nothing accepted can plan a large allocation)."""
 
 from __future__ import annotations
 
+import resource
 import tempfile
+from collections.abc import Iterator
 from datetime import timedelta
 from pathlib import Path
 
@@ -33,9 +35,19 @@ def bounded(examples: int) -> settings:
     )
 
 
+#: how much the process's peak resident memory may grow over all examples of one test
+MAX_RSS_GROWTH_MB = 512
+
+
 @pytest.fixture(autouse=True)
-def small_memory_limit(monkeypatch: pytest.MonkeyPatch) -> None:
+def bounded_memory(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """The guard's memory limit lowered (nothing accepted may plan more than 256 MB), and
+    the peak RSS over the test's examples measured: no example may balloon."""
     monkeypatch.setenv(MEMORY_LIMIT_ENV, "256M")
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    yield
+    grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+    assert grown_mb < MAX_RSS_GROWTH_MB, f"peak RSS grew {grown_mb:.0f} MB"
 
 
 def one_line(exc: TactileBenchError) -> None:
