@@ -26,6 +26,7 @@ from bad_input_fixtures import (
     png,
     write_recipe,
 )
+from PIL import Image
 
 SIZES = "absurd sizes"
 NONSENSE = "nonsense that exited 0"
@@ -181,6 +182,15 @@ def c_dup_objects(tmp: Path) -> list[str]:
 def c_ground_empty(tmp: Path) -> list[str]:
     (tmp / "empty").mkdir()
     return ["ground", "--real-dir", str(tmp / "empty")]
+
+
+def c_tiny_gap(tmp: Path) -> list[str]:
+    root = paired_layout(tmp / "paired", n=6)
+    for i in range(6):
+        sim = np.asarray(Image.open(root / "sim" / f"c{i}.png")).copy()
+        sim[5, 5, 0] = sim[5, 5, 0] ^ 1  # one level in one pixel
+        png(root / "real" / f"c{i}.png", sim)
+    return diagnose(tmp, root)
 
 
 def c_no_gap(tmp: Path) -> list[str]:
@@ -655,6 +665,13 @@ GUARD_CASES: list[tuple[str, str, Callable[[Path], list[str]], str, dict]] = [
         {},
     ),
     (NONSENSE, "bench --only with nothing", A("bench", "--only", "--out", "{tmp}/b"), "--only", {}),
+    (
+        NONSENSE,
+        "diagnose: real = sim but one level in one pixel",
+        c_tiny_gap,
+        "no sim-to-real gap",
+        {},
+    ),
     (NONSENSE, "ground --real-dir on an empty folder", c_ground_empty, "nothing to measure", {}),
     (NONSENSE, "diagnose: real images equal the sim images", c_no_gap, "no sim-to-real gap", {}),
     (OUTPUT, "diagnose --out is a file", c_out_is_file, "f.txt", {}),
