@@ -49,11 +49,19 @@ def _tactile_diffusion(path: Path, skipped: Skipped | None, seed: int = 0) -> st
 
 
 def _ycb_slide(path: Path, skipped: Skipped | None) -> str:
+    from tactile_bench.data.ycb_processed import released_background
     from tactile_bench.data.ycb_slide import load_ycb_slide_real
 
     pairs = load_ycb_slide_real(path, skipped=skipped)
     logs = len(set(pairs.meta["trajectory"].tolist()))
-    return f"YCB-Slide real layout: {len(pairs)} (depth, frame) pairs from {logs} logs"
+    objects = sorted(p.name for p in (path / "real").iterdir() if p.is_dir())
+    bgs = "; ".join(
+        f"{o}: {released_background(path / 'bgs', o) or 'first frame of each log'}" for o in objects
+    )
+    return (
+        f"YCB-Slide real layout: {len(pairs)} (depth, frame) pairs from {logs} logs; "
+        f"backgrounds {bgs}"
+    )
 
 
 def _ycb_processed(path: Path, skipped: Skipped | None) -> str:
