@@ -42,6 +42,13 @@ stages:
       train_set: split_train
       eval_pairs: 8
       translator_config: {{max_steps: 1, batch_size: 8}}
+  - name: translator_pool
+    kind: fit_translator
+    inputs: {{braille: braille}}
+    config:
+      translator: colour_match
+      eval_pairs: 8
+      translator_config: {{max_steps: 1, batch_size: 8}}
   - name: classify_sim
     kind: classify
     inputs: {{data: braille}}
@@ -121,6 +128,11 @@ def test_finetune_fractions_are_of_the_whole_pool(fitted: Path) -> None:
     assert ft20["n_finetune"] == 54  # 20% of all 270 (braille_clf p_data_fine_tune)
     fitted_translator = json.loads((dirs["translator"] / "metrics.json").read_text())
     assert fitted_translator["fit_pairs"] == 27  # the translator trains on the split's train list
+    # on the whole pool, a translator leaves out the split's test files it is scored on
+    in_test = np.load(dirs["braille"] / "finetune_in_test.npy")
+    assert in_test.sum() == 27
+    pool = json.loads((dirs["translator_pool"] / "metrics.json").read_text())
+    assert pool["fit_pairs"] == 270 - 27
 
 
 def test_sim_row_trains_on_the_release_tacto_frames(fitted: Path) -> None:

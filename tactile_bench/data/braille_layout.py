@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from tactile_bench.data.braille import BrailleSet
@@ -114,8 +115,10 @@ def load_layout_sets(
     chars: tuple[str, ...],
     split: Split,
     sim_release: bool = False,
-) -> dict[str, BrailleSet]:
-    """The sets of a braille_data stage, read from ``root`` (see the module doc).
+) -> tuple[dict[str, BrailleSet], np.ndarray]:
+    """The sets of a braille_data stage, read from ``root`` (see the module doc), and which
+    ``finetune`` pairs the split holds out for testing (a translator fitted on the pool
+    leaves them out, so its held-out scores are held out).
 
     ``split``: the translator's split ({letter: {"train", "test"}}), read or drawn by the
     caller (``tactile_diffusion.split_for_run``).
@@ -154,6 +157,8 @@ def load_layout_sets(
         real_background=to_uint8(_single(background)),
     )
     out |= {"classifier": classifier, "classifier_test": classifier_test}
+    test_files = {f"{letter}/{name}" for letter, parts in split.items() for name in parts["test"]}
+    in_test = np.isin(loaded["finetune"].meta["file"], sorted(test_files))
     if sim_release:
         sims, sim_labels, sim_bg = load_braille_real_images(
             root, gel, subset="sim_tacto", background_id=SIM_BACKGROUND_ID
@@ -169,4 +174,4 @@ def load_layout_sets(
             sim_background=to_uint8(_single(sim_bg)),
             real_background=to_uint8(_single(background)),
         )
-    return out
+    return out, in_test

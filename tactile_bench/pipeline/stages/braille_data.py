@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import torch
 from pydantic import Field
 
@@ -49,6 +50,8 @@ from tactile_bench.sensor.heightfield import build_bank
 from tactile_bench.sensor.optics import SimOptics
 
 SETS = ("finetune", "test", "classifier", "classifier_test")
+#: real source: which finetune pairs the translator split tests on (fit_translator skips them)
+HELD_OUT_FILE = "finetune_in_test.npy"
 
 
 class BrailleDataConfig(StageConfig):
@@ -139,7 +142,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         if (ctx.directory / SPLIT_FILE).exists():
             outputs["split"] = SPLIT_FILE
         release = config.sim_source == "release"
-        sets = load_layout_sets(
+        sets, in_test = load_layout_sets(
             root,
             gel,
             sim_background(config.image_size),
@@ -149,6 +152,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             split,
             sim_release=release,
         )
+        np.save(ctx.directory / HELD_OUT_FILE, in_test)
+        outputs["finetune_in_test"] = HELD_OUT_FILE
         content = dict(LAYOUT_CONTENT) | ({"sim_release": SIM_RELEASE_CONTENT} if release else {})
         extra = {"source_root": str(root), "split": origin}
     for name in sets:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import torch
 from pydantic import Field
 
@@ -81,6 +82,10 @@ def _pairs(
         )
     if braille is not None:
         pool = BrailleSet.load(braille.path(train_set))
+        if train_set == "finetune" and "finetune_in_test" in braille.outputs:
+            # real data: the pool holds the split's test files; fit without them
+            in_test = np.load(braille.path("finetune_in_test"))
+            pool = pool.subset(torch.from_numpy(~in_test))
         pool = pool.subset(stratified_subset(pool.labels, fraction, ctx.seed))
         test = BrailleSet.load(braille.path("test"))
         return (
