@@ -45,6 +45,8 @@ def _tactile_diffusion(path: Path, skipped: Skipped | None, seed: int = 0) -> st
             base, subset="sim_tacto", background_id=SIM_BACKGROUND_ID, skipped=skipped
         )
         text += f"; {len(sims)} release sim frames (sim_source: release)"
+    if skipped:  # the split's parts re-read files "all" read: list each bad file once
+        skipped[:] = list(dict.fromkeys(skipped))
     return text
 
 
