@@ -108,6 +108,22 @@ class Text:
             )
 
 
+@dataclass(frozen=True)
+class YamlFile:
+    """A recipe or profile path, read now by the safe loader (regular file, no alias bomb,
+    no key twice): refused before the command imports its machinery. ``named`` allows a
+    built-in name instead of a path (a profile name has no suffix)."""
+
+    what: str
+    named: bool = False
+
+    def __call__(self, dest: str, value: object) -> None:
+        from tactile_bench.guard.safe_yaml import load_yaml_file
+
+        if isinstance(value, str) and not (self.named and not Path(value).suffix):
+            load_yaml_file(value, self.what)
+
+
 Rule = Callable[[str, object], None]
 
 #: every numeric or list argument of every command, by its ``dest``
@@ -135,6 +151,8 @@ ARG_RULES: dict[str, Rule] = {
     "only": Names(),
     "force": Names(nonempty=False),
     "word": Text(200),
+    "recipe": YamlFile("recipe"),
+    "profile": YamlFile("profile", named=True),
 }
 
 
