@@ -173,3 +173,14 @@ def test_a_plugin_calling_sys_exit_is_marked_broken(
     assert main(["list", "translators"]) == 0
     out = capsys.readouterr().out
     assert "quitter" in out and "SystemExit: 3" in out and "cgan" in out
+
+
+def test_the_working_folder_is_locked_from_inside(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert lock_path(Path(".")) == tmp_path / ".tactile_bench.lock"
+    assert lock_path(Path("out")) == tmp_path / ".out.tactile_bench.lock"
+    with OutputLock(Path("."), "--out"):
+        assert (tmp_path / ".tactile_bench.lock").exists()
+    assert not any(tmp_path.parent.glob(f".{tmp_path.name}*"))

@@ -94,8 +94,13 @@ def check_output_file(path: str | os.PathLike[str], key: str, suffixes: Sequence
 
 
 def lock_path(target: Path) -> Path:
-    """The lock file of an output: hidden, beside it (so the output folder stays as written)."""
+    """The lock file of an output: hidden, beside it (so the output folder stays as written);
+    inside it when it is the working folder, one above it, or ``/`` (``bench --out .``):
+    nothing is written above where the user works."""
     target = Path(os.path.abspath(target))
+    cwd = Path(os.path.abspath(os.curdir))
+    if target == target.parent or target == cwd or target in cwd.parents:
+        return target / ".tactile_bench.lock"
     return target.parent / f".{target.name}.tactile_bench.lock"
 
 
