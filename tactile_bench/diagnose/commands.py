@@ -1,4 +1,9 @@
-"""Subcommands ``diagnose`` (the gap diagnosis) and ``export-pairs`` (data in its layout)."""
+"""Subcommands ``diagnose`` (the gap diagnosis), ``export-pairs`` (data in its layout) and
+``validate-diagnosis`` (the diagnosis on planted effects).
+
+The parsers are built without importing torch (``--help`` answers at once); each command
+imports its machinery when it runs.
+"""
 
 from __future__ import annotations
 
@@ -245,9 +250,20 @@ def _export_real_presses(ns: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_validate(ns: argparse.Namespace) -> int:
+    # imported here, not at the top: diagnose.validate loads torch and the whole renderer
+    from tactile_bench.diagnose.validate import _cmd
+
+    return _cmd(ns)
+
+
 # ------------------------------------------------------------------------------ parsers
+#: ``validate-diagnosis --suite`` choices
+VALIDATION_SUITES = ("own", "foreign", "both")
+
+
 def register(subparsers: Any) -> None:
-    """Add ``diagnose`` and ``export-pairs``."""
+    """Add ``diagnose``, ``export-pairs`` and ``validate-diagnosis``."""
     diag = subparsers.add_parser(
         "diagnose",
         help="diagnose the sim-to-real gap of paired data: where, which effect, how far",
@@ -313,3 +329,27 @@ def register(subparsers: Any) -> None:
     exp.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     exp.add_argument("--no-progress", action="store_true")
     exp.set_defaults(func=_cmd_export_pairs)
+
+    val = subparsers.add_parser(
+        "validate-diagnosis",
+        help="plant withheld effects in surrogate-real data and check the gap diagnosis",
+        description="Renders braille contacts twice with the surrogate (sim: no effect; real: "
+        "planted effects at random parameters), diagnoses blind and checks the planted effect "
+        "is named; writes validation.json and validation.md (diagnose.validate).",
+    )
+    val.add_argument("--out", default="runs/validate_diagnosis", help="output directory")
+    val.add_argument("--quick", action="store_true", help="a few cases, fewer pairs (minutes)")
+    val.add_argument(
+        "--pairs", type=int, default=None, help="pairs per case (default 200, quick 120)"
+    )
+    val.add_argument("--seed", type=int, default=0)
+    val.add_argument("--size", type=int, default=64, help="image size")
+    val.add_argument(
+        "--suite",
+        # diagnose.validate.SUITES plus "both" (tests/test_cli_startup.py keeps them equal)
+        choices=VALIDATION_SUITES,
+        default="both",
+        help="own: the project's renderer; foreign: an independent renderer (default both)",
+    )
+    val.add_argument("--no-progress", action="store_true")
+    val.set_defaults(func=_cmd_validate)

@@ -1,0 +1,65 @@
+"""``--help`` answers without loading the stack: the parsers are built from light modules,
+and each command imports torch, Lightning and the renderer only when it runs (issue 20)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from tactile_bench.cli import build_parser
+
+#: packages whose import costs seconds; none may load to print a help text
+HEAVY = ("torch", "lightning", "torchmetrics", "diffusers", "kornia", "trimesh", "scipy")
+
+_PROBE = """
+import contextlib, io, json, sys
+from tactile_bench.cli import main
+commands = json.loads(sys.argv[1])
+codes = {}
+for command in commands:
+    with contextlib.redirect_stdout(io.StringIO()) as out:
+        codes[" ".join(command) or "(top)"] = (main([*command, "--help"]), len(out.getvalue()))
+heavy = sorted({m.split(".")[0] for m in sys.modules} & set(json.loads(sys.argv[2])))
+print(json.dumps({"codes": codes, "heavy": heavy}))
+"""
+
+
+def _command_paths() -> list[list[str]]:
+    """Every command and nested subcommand, as argument lists (``["data", "ycb-slide"]``)."""
+    import argparse
+
+    def walk(parser: argparse.ArgumentParser, prefix: list[str]) -> list[list[str]]:
+        found = [prefix]
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    found += walk(sub, [*prefix, name])
+        return found
+
+    return walk(build_parser(), [])
+
+
+def test_help_of_every_command_imports_neither_torch_nor_lightning() -> None:
+    commands = _command_paths()
+    assert len(commands) > 10  # the walk found the subcommands
+    done = subprocess.run(
+        [sys.executable, "-c", _PROBE, json.dumps(commands), json.dumps(HEAVY)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["heavy"] == [], f"--help imported {report['heavy']}"
+    for command, (code, n_chars) in report["codes"].items():
+        assert code == 0, command
+        assert n_chars > 100, f"{command} --help printed almost nothing"
+
+
+def test_validate_diagnosis_suites_match_the_module() -> None:
+    # the parser is declared in diagnose.commands so that it needs no torch; the suites
+    # themselves are diagnose.validate's
+    from tactile_bench.diagnose.commands import VALIDATION_SUITES
+    from tactile_bench.diagnose.validate import SUITES
+
+    assert (*SUITES, "both") == VALIDATION_SUITES
