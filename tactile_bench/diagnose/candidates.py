@@ -9,9 +9,13 @@ The candidate simulator starts from what paired data hold, never from a sensor p
   as the ranking's first line (``which``);
 - the measured frame already went through the real sensor, so a candidate never applies
   an effect to it a second time: the sim's own frame is taken through the candidate's
-  optics and camera with and without the contact, and the **difference** (the contact's
-  change as that sensor sees it) is added to the measured frame; only per-frame camera
-  effects (noise) and the codec (``whole_frame``) then act on the whole composite;
+  optics and linear camera effects with and without the contact, and the **difference**
+  (the contact's change as that sensor sees it) is added to the measured frame. The
+  camera's nonlinear steps act where the real ones did: a tone curve on the light the real
+  sensor saw (the measured frame undone through the curve, ``ToneCurve.undo``) plus that
+  change; a codec on the sim's own uncompressed frame plus the change, its coded
+  difference added to the measured frame (coding the measured frame again would compress
+  it twice); per-frame noise (``whole_frame``) on the whole composite;
 - **geometry** effects change the height (sub-pixel texture at 2x the image size,
   area-averaged back as a camera integrates), and their colour change is re-rendered
   *linearly*: ``delta + S(h') - S(h)``, with ``S`` **the user's sim optics**: the built-in
@@ -75,8 +79,8 @@ import torch.nn.functional as F
 
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, Effect, EffectContext
-from tactile_bench.effects.base import ParamValue, gaussian_blur, per_sub_batch
-from tactile_bench.effects.camera import jpeg_approx
+from tactile_bench.effects.base import ParamValue, gaussian_blur
+from tactile_bench.effects.camera import libjpeg
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec
@@ -332,13 +336,11 @@ class Candidate:
         note: str = "",
         fixed: Mapping[str, float] | None = None,
         integer: tuple[str, ...] = (),
-        whole_frame: bool | None = None,
     ) -> None:
         self.effect = effect
-        # a camera effect that acts on every frame as a whole (per-frame noise, a codec): a
-        # measured no-contact frame holds no draw of this frame's, so it is applied to the
-        # composite; every other effect reaches the image through the contact's change only
-        self.whole_frame = effect.stochastic if whole_frame is None else whole_frame
+        # a camera effect drawn anew for every frame (noise): a measured no-contact frame
+        # holds no draw of this frame's, so it is applied to the composite as a whole
+        self.whole_frame = effect.stochastic
         self.fixed = dict(fixed or {})  # held values of skipped parameters (else neutral)
         skip = tuple(skip) + tuple(self.fixed)
         self.name = effect.name
@@ -363,6 +365,16 @@ class Candidate:
 
     latent_grid: tuple[float, ...] = ()  # values of a per-pair hidden variable, tried per pair
     oversample = 1  # geometry at this multiple of the image size (sub-pixel detail: > 1)
+    # a pointwise, invertible camera curve: it acts at the real light's level, which
+    # ``undo`` reads from the measured no-contact frame (module docstring)
+    tone_curve = False
+    # a codec: it acts around an uncompressed frame, never on one it already compressed
+    codec = False
+
+    def fitted_numbers(self, base: Base) -> int:
+        """How many numbers a fit of this candidate sets from the data (its searched
+        parameters, plus any table or per-pair value it fits): its freedom to absorb a gap."""
+        return len(self.searched) + len(base) * bool(self.latent_grid)
 
     def full_params(self, params: Mapping[str, ParamValue]) -> dict[str, ParamValue]:
         """Every effect parameter: the given ones, neutral for the rest (never the defaults)."""
@@ -500,6 +512,11 @@ class FittedResponse(Candidate):
     """optical_response as a lookup fitted from the pairs (module docstring): ``blend``
     moves the sim's colour change towards the lookup's; nothing of any one sensor is used."""
 
+    def fitted_numbers(self, base: Base) -> int:
+        """``blend`` and the lookup's every coefficient (F x 3 x 6, least squares)."""
+        columns = response_design(base.depth[:1, :, :2, :2], base.gel_mm).shape[-1]
+        return len(self.searched) + 3 * columns
+
     def apply(
         self,
         x: Any,
@@ -598,9 +615,22 @@ class PressDepth(Candidate):
         return replace(x, depth=depth, delta=delta, _shading={1: shading})
 
 
+class ToneCurve(Candidate):
+    """gamma_white_balance: the camera's curve acts on the light the real sensor saw, the
+    measured no-contact frame undone through the curve, plus the contact's change."""
+
+    tone_curve = True
+
+    def undo(self, frame: torch.Tensor, params: Mapping[str, ParamValue]) -> torch.Tensor:
+        return self.effect.invert(frame, self.full_params(params))
+
+
 class StoredJpeg(Candidate):
-    """jpeg at the sensor's native frame (the effect) or at the size the frames are stored
-    at (``stored_size`` 1: a dataset that re-encodes its resized frames)."""
+    """jpeg at the sensor's native frame (the effect's codec) or at the size the frames are
+    stored at (``stored_size`` 1: a dataset that wrote its resized frames as JPEG files, by
+    the encoder datasets are written with: libjpeg through Pillow)."""
+
+    codec = True
 
     def __init__(self, effect: Effect, **kwargs: Any) -> None:
         super().__init__(effect, **kwargs)
@@ -619,9 +649,7 @@ class StoredJpeg(Candidate):
         quality = float(self.full_params(params)["quality"])
         if quality >= 100.0 or not len(x):
             return x
-        return per_sub_batch(
-            lambda c: jpeg_approx(c, quality, tuple(c.shape[-2:])), x, size=self.effect.chunk
-        )
+        return libjpeg(x, quality)
 
 
 def _deterministic_geometry(effects: Mapping[str, Any]) -> dict[str, Any]:
@@ -666,9 +694,8 @@ def lookup_for(base: Base, geometry: Mapping[str, Mapping[str, ParamValue]]) -> 
 _SPECIAL: dict[str, Any] = {
     # the codec rounds quality to a whole number and its tables change at every step: the
     # gap drops sharply only at the exact value, so every whole value is tried
-    "jpeg": lambda e: StoredJpeg(
-        e, note="quality searched value by value", integer=("quality",), whole_frame=True
-    ),
+    "jpeg": lambda e: StoredJpeg(e, note="quality searched value by value", integer=("quality",)),
+    "gamma_white_balance": ToneCurve,
     "shear_smear": lambda e: LatentSmear(e, note="slip direction chosen per pair (latent)"),
     "gel_wear": MeasuredWear,
     "pose_error": Registration,
@@ -693,9 +720,12 @@ def get_candidate(name: str) -> Candidate:
 
 
 def bake_geometry(base: Base, effects: Mapping[str, Mapping[str, ParamValue]]) -> Base:
-    """``base`` with (deterministic) geometry ``effects`` applied: a new depth and colour
-    change, so later stages can be fitted without re-rendering the geometry every step."""
-    height, delta = _geometry(base, effects, None, base.context())
+    """``base`` with (deterministic) pose and geometry ``effects`` applied: a new depth and
+    colour change, so later stages can be fitted without re-rendering them every step."""
+    ctx = base.context()
+    for n in [n for n in EFFECT_ORDER if n in effects and CANDIDATES[n].stage == "pose"]:
+        base = CANDIDATES[n].apply(base, effects[n], None, ctx, base)
+    height, delta = _geometry(base, effects, None, ctx)
     baked = {**base.baked, **_deterministic_geometry(effects)}
     return replace(base, depth=height, delta=delta, _shading={}, baked=baked)
 
@@ -753,10 +783,18 @@ def render(
         contact = contact.expand(len(base), -1, -1, -1)
     flat_height = torch.zeros(1, 1, base.size, base.size)
     flat = _through_sensor(base, names, effects, new_scene(flat_height, ref), ctx)
-    image = base.background + (contact - flat)
-    for n in names:
-        if CANDIDATES[n].whole_frame and CANDIDATES[n].stage == "camera":
-            image = CANDIDATES[n].apply(image, effects[n], generator, ctx, base)
+    measured = base.background
+    image = measured + (contact - flat)
+    for n in [n for n in names if CANDIDATES[n].stage == "camera"]:
+        cand, p = CANDIDATES[n], effects[n]
+        if cand.tone_curve:  # at the real light's level: the measured frame undone
+            image = cand.apply(cand.undo(measured, p) + (contact - flat), p, generator, ctx, base)
+            flat = cand.apply(flat, p, None, ctx, base)
+        elif cand.codec:  # around the sim's own (uncompressed) frame: the change it codes
+            coded = cand.apply(flat + (image - measured), p, generator, ctx, base)
+            image = measured + coded - cand.apply(flat, p, None, ctx, base)
+        elif cand.whole_frame:  # per-frame draws: the composite as a whole
+            image = cand.apply(image, p, generator, ctx, base)
     return image.clamp(0.0, 255.0)
 
 
@@ -767,14 +805,16 @@ def _through_sensor(
     scene: Any,
     ctx: EffectContext,
 ) -> torch.Tensor:
-    """A scene through the optics and the camera effects that act on the light field
-    (all but the whole-frame ones), in catalogue order: deterministic, no draws."""
+    """A scene through the optics and the camera effects that are linear in the light
+    (blur, vignetting), in catalogue order: deterministic, no draws. Tone curves, codecs
+    and per-frame noise act on the composite (``render``)."""
     for n in [n for n in names if CANDIDATES[n].stage == "optics"]:
         scene = CANDIDATES[n].apply(scene, effects[n], None, ctx, base)
     image = scene.composite()
     for n in names:
-        if CANDIDATES[n].stage == "camera" and not CANDIDATES[n].whole_frame:
-            image = CANDIDATES[n].apply(image, effects[n], None, ctx, base)
+        cand = CANDIDATES[n]
+        if cand.stage == "camera" and not (cand.whole_frame or cand.tone_curve or cand.codec):
+            image = cand.apply(image, effects[n], None, ctx, base)
     return image
 
 

@@ -8,12 +8,15 @@ unit's no-contact frame.
 
 from __future__ import annotations
 
+import io
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numpy as np
 import torch
+from PIL import Image
 
 from tactile_bench.effects.base import (
     Draw,
@@ -163,6 +166,14 @@ class GammaWhiteBalance(Effect):
         return per_sub_batch(
             lambda x: (x * wb).div_(255.0).clamp_(1e-4, 1.0).pow_(g).mul_(255.0), x
         )
+
+    def invert(self, y: torch.Tensor, p: Mapping[str, ParamValue]) -> torch.Tensor:
+        """The light that gave the processed frame ``y`` (the curve is pointwise and
+        monotone): a measured frame's level before the camera's processing, where a contact's
+        change of light adds. Clipped levels stay at the clip."""
+        one = torch.ones(())
+        wb = torch.stack([as_tensor(p["wb_r"]), one, as_tensor(p["wb_b"])]).view(1, 3, 1, 1)
+        return 255.0 * (y / 255.0).clamp(1e-4, 1.0) ** as_tensor(p["gamma"]) / wb
 
 
 # --------------------------------------------------------------------------- JPEG
@@ -330,6 +341,22 @@ def jpeg_approx(x: torch.Tensor, quality: float, native_hw: tuple[int, int]) -> 
         if m[c][2]:
             rgb[:, c].add_(cr, alpha=m[c][2])
     return rgb.clamp_(0.0, 255.0).permute(2, 1, 0, 3).contiguous()
+
+
+def libjpeg(x: torch.Tensor, quality: float) -> torch.Tensor:
+    """(N, 3, H, W) 0..255 frames stored as baseline JPEG files and read back, by the
+    encoder that writes datasets' files (libjpeg through Pillow: 4:2:0, Annex K tables
+    scaled by ``quality``). Exact where ``jpeg_approx`` approximates; the gradient passes
+    straight through (as the approximation's rounding does)."""
+    pixels = x.detach().clamp(0.0, 255.0).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    out = []
+    for frame in pixels:
+        buf = io.BytesIO()
+        Image.fromarray(frame).save(buf, format="JPEG", quality=int(round(quality)))
+        with Image.open(buf) as im:
+            out.append(torch.from_numpy(np.asarray(im.convert("RGB")).copy()))
+    coded = torch.stack(out).permute(0, 3, 1, 2).to(x.dtype)
+    return x + (coded - x).detach() if x.requires_grad else coded
 
 
 class StreamCompression(Effect):
