@@ -15,9 +15,11 @@ being penalised for its own randomness.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -41,6 +43,8 @@ GAP_METRIC = (
 SWEEP_LEVELS = (0.02, 0.25, 0.5, 0.75, 0.98)  # unit-range values of a coordinate sweep
 DIFF_SWEEP_LEVELS = (0.1, 0.5, 0.9)  # coarser for parameters Adam refines afterwards
 MAX_WHOLE_VALUES = 100  # integer parameters with at most this many values: tried one by one
+MAX_WHOLE_POINTS = 400  # combinations of whole values tried jointly (else one at a time)
+MAX_GRID_PARAMS = 2  # up to this many gradient-free parameters: a full grid, not a sweep
 
 
 def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -179,9 +183,11 @@ def fit_candidate(
     cand = get_candidate(name)
     budget = budget or FitBudget()
     prior = dict(prior or {})
-    baked = {n: p for n, p in prior.items() if CANDIDATES[n].stage == "geometry"}
-    if baked and cand.stage != "geometry" and not _random(baked):
-        # fixed geometry before this candidate's stage: re-render it once, not every step
+    # fixed pose and geometry before this candidate's stage: applied once, not every step
+    # (a codec's quality search renders hundreds of times)
+    stages = {"pose"} if cand.stage == "geometry" else {"pose", "geometry"}
+    baked = {n: p for n, p in prior.items() if CANDIDATES[n].stage in stages}
+    if baked and cand.stage != "pose" and not _random(baked):
         base = bake_geometry(base, baked)
         prior = {n: p for n, p in prior.items() if n not in baked}
     gen = torch.Generator().manual_seed(seed)
@@ -224,13 +230,28 @@ def fit_candidate(
     whole = [s for s in cand.searched if s.integer and s.high - s.low <= MAX_WHOLE_VALUES]
     other = [s.name for s in cand.searched if not s.differentiable and s not in whole]
     with torch.no_grad():
-        for s in whole:  # every whole value on the sweep's pairs, the best few on more
-            levels = [s.to_unit(v) for v in range(math.ceil(s.low), math.floor(s.high) + 1)]
-            scores = sorted((float(loss({**u, s.name: lv}, sweep_idx)), lv) for lv in levels)
-            u[s.name] = min((float(loss({**u, s.name: lv}, adam_idx)), lv) for _, lv in scores[:3])[
-                1
-            ]
-        sweep(other, SWEEP_LEVELS, sweep_idx)
+        # every combination of whole values on the sweep's pairs, the best few on more:
+        # jointly, since a codec's quality that fits one frame size misfits the other
+        grids = [
+            [s.to_unit(v) for v in range(math.ceil(s.low), math.floor(s.high) + 1)] for s in whole
+        ]
+        joint = math.prod(len(g) for g in grids) <= MAX_WHOLE_POINTS
+        for names, values in (
+            [([s.name for s in whole], grids)]
+            if joint
+            else [([s.name], [g]) for s, g in zip(whole, grids, strict=True)]
+        ):
+            points = [dict(zip(names, lv, strict=True)) for lv in itertools.product(*values)]
+            scores = sorted(
+                ((float(loss({**u, **pt}, sweep_idx)), i) for i, pt in enumerate(points)),
+                key=lambda t: t[0],
+            )
+            best = min((float(loss({**u, **points[i]}, adam_idx)), i) for _, i in scores[:3])
+            u.update(points[best[1]])
+        if len(other) <= MAX_GRID_PARAMS:
+            _grid(u, other, lambda v: float(loss(v, sweep_idx)))
+        else:
+            sweep(other, SWEEP_LEVELS, sweep_idx)
         sweep(diff, DIFF_SWEEP_LEVELS, sweep_idx)  # only to leave flat or local minima
     _adam(u, diff, lambda v: loss(v, adam_idx), budget)
     if other:
@@ -241,6 +262,19 @@ def fit_candidate(
         if moved and diff:
             _adam(u, diff, lambda v: loss(v, adam_idx), budget, steps=budget.adam_steps // 2)
     return {s.name: s.report(float(u[s.name])) for s in cand.searched}
+
+
+def _grid(u: dict[str, object], names: list[str], loss_fn: Any) -> None:
+    """``names`` set to their best point on the full grid of ``SWEEP_LEVELS`` (coupled
+    parameters, such as a gel's spread and the core it holds, have no good value of one at
+    the other's start: a sweep one coordinate at a time stalls there)."""
+    best = (loss_fn(u), {n: u[n] for n in names})
+    for levels in itertools.product(SWEEP_LEVELS, repeat=len(names)):
+        trial = dict(zip(names, levels, strict=True))
+        value = loss_fn({**u, **trial})
+        if value < best[0] - 1e-9:
+            best = (value, trial)
+    u.update(best[1])
 
 
 def _refine(u: dict[str, object], names: list[str], loss_fn: object, rounds: int = 2) -> bool:
