@@ -282,3 +282,78 @@ def test_registration_refits_jointly_with_geometry_effects(bank) -> None:
     }
     joint = fit_jointly(effects, make_base(data), Target.of(data.real))
     assert set(joint) == set(effects) and joint["press_error"] == effects["press_error"]
+
+
+def test_tone_curve_acts_at_the_real_light_of_a_composited_sim(bank) -> None:
+    """A sim composited onto a measured frame that went through the camera's tone curve:
+    the candidate undoes the curve on that frame, adds the contact's change of light and
+    redoes it, as the camera did; composited frames would be curved twice otherwise."""
+    gamma = EFFECTS["gamma_white_balance"]
+    params = {"gamma": 1.7, "wb_r": 0.9, "wb_b": 1.1}
+    base = make_base(_pairs(bank, {}, n=6))
+    light = base.sim_frame  # the light the real sensor saw with no contact
+    change = base.delta
+    full = {**gamma.neutral_params(), **params}
+    real = gamma.apply((light + change).clamp(0, 255), full, None, base.context())
+    measured = gamma.apply(light, full, None, base.context())
+    composited = dataclasses.replace(base, background=measured, sim_background=measured)
+    fitted = render(composited, {"gamma_white_balance": params})
+    torch.testing.assert_close(fitted, real.clamp(0, 255), atol=0.05, rtol=0)
+    undone = get_candidate("gamma_white_balance").undo(measured, params)
+    torch.testing.assert_close(undone, light, atol=0.05, rtol=0)
+
+
+def test_stored_jpeg_codes_the_uncompressed_frame_once(bank) -> None:
+    """Frames stored as JPEG files: the candidate codes the sim's own frame plus the
+    contact's change with the encoder datasets are written with (libjpeg), so at the true
+    quality it reproduces them exactly, where coding the composite onto the (already
+    coded) measured frame would compress the background twice."""
+    from tactile_bench.effects.camera import libjpeg
+
+    data = _pairs(bank, {}, n=8)
+    sim_frame = data.sim_background[None]
+    real = libjpeg(data.sim.float(), 40)
+    coded = dataclasses.replace(data, real=real, background=libjpeg(sim_frame, 40)[0])
+    base = make_base(coded)
+    stored = render(base, {"jpeg": {"quality": 40.0, "stored_size": 1.0}})
+    assert float((stored - real).abs().max()) <= 1.0  # the same bytes, up to rounding
+    twice = libjpeg(render(base, {}), 40)  # the old composite: coded onto a coded frame
+    assert float((twice - real).abs().mean()) > 4 * float((stored - real).abs().mean()) + 0.05
+
+
+def test_coupled_geometry_parameters_are_fitted_on_a_grid(bank) -> None:
+    """elastic_spread's spread only shows at the right held core: a sweep of one parameter
+    at the other's start stalls (it once fitted sigma 0.3 mm for a planted 2.5 mm)."""
+    planted = {"elastic_spread": {"sigma_mm": 2.4, "contact_scale": 0.9}}
+    data = _pairs(bank, planted, n=24)
+    base, target = make_base(data), Target.of(data.real)
+    fitted = fit_candidate("elastic_spread", base, target)
+    before = float(model_gap(base, target, {}).mean())
+    after = float(model_gap(base, target, {"elastic_spread": fitted}).mean())
+    assert after < 0.2 * before, (fitted, before, after)
+    assert fitted["sigma_mm"] > 1.0 and fitted["contact_scale"] > 0.6
+
+
+def test_of_effects_the_data_cannot_tell_apart_the_simplest_is_ranked_first(bank) -> None:
+    """Two fits whose images differ by less than 8-bit rounding are one explanation: the
+    one with fewer fitted numbers comes first (the lookup has hundreds), the other is named
+    as confusable; clearly different images keep the better fit first."""
+    from tactile_bench.diagnose.which import _pick
+
+    data = _pairs(bank, {}, n=24)
+    idx = torch.arange(24)
+    base = make_base(data, idx, lookup_from=idx)
+    before = torch.full((24,), 10.0)
+    lookup_gap = 5 + torch.rand(24, generator=torch.Generator().manual_seed(0))
+    options = {
+        # neutral fits: both render the plain composite, to the last grey level
+        "optical_response": ({"blend": 0.0}, lookup_gap),
+        "led_diffusivity": (EFFECTS["led_diffusivity"].neutral_params(), lookup_gap + 0.1),
+    }
+    assert CANDIDATES["optical_response"].fitted_numbers(base) > 100
+    row = _pick(options, {}, before, 0.2, base, 0)
+    assert row.effect == "led_diffusivity" and row.confusable_with == ["optical_response"]
+    # a rival that changes the images (and is worse on every pair) is not confusable
+    options["led_diffusivity"] = ({"gain_r": 0.5, "gain_g": 1.5}, lookup_gap + 0.1)
+    row = _pick(options, {}, before, 0.2, base, 0)
+    assert row.effect == "optical_response" and row.confusable_with == []

@@ -15,7 +15,7 @@ set (or an unfittable one) carries it. The diagnosis reads paired data only.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -48,6 +48,9 @@ MIN_SHARE = 0.02  # a selected effect removes at least this share of the initial
 FLAG_UNEXPLAINED = 0.2  # residual share above which it is flagged
 MAX_ROUNDS = 4
 BOOTSTRAP = 500
+# RMS of 8-bit rounding (1/sqrt(12) grey level): fitted images closer than this are the
+# same image as far as 8-bit frames can show
+PIXEL_NOISE = 1 / math.sqrt(12)
 MAX_REFITS = 4  # candidates refitted with the selected ones each round, best singles first
 SCREEN_SHARE = 0.25  # ... plus any whose single fit still removes this share of what is left
 SCREEN_PAIRS = 64
@@ -163,13 +166,20 @@ def _confusable(
     options: Mapping[str, tuple[dict[str, float], torch.Tensor]],
     threshold: float,
     seed: int,
+    image_of: Callable[[str], torch.Tensor | None] | None = None,
 ) -> EffectFit:
-    """``row`` with the rivals its held-out pairs cannot tell from it (see EffectFit)."""
+    """``row`` with the rivals its held-out pairs cannot tell from it (see EffectFit): the
+    paired CI of their difference reaches 0, or (``image_of``: each one's fitted held-out
+    images, None when drawn at random) their images differ by less than 8-bit rounding."""
     rivals = []
+    mine = image_of(row.effect) if image_of else None
     for name, (_, after) in options.items():
         if name == row.effect or float(before.mean() - after.mean()) < threshold:
             continue
-        if paired_difference_ci(before, chosen, after, seed)[0] <= 0:
+        theirs = image_of(name) if image_of and mine is not None else None
+        if paired_difference_ci(before, chosen, after, seed)[0] <= 0 or (
+            theirs is not None and float((theirs - mine).square().mean().sqrt()) < PIXEL_NOISE
+        ):
             rivals.append(name)
     if not rivals:
         return row
@@ -233,12 +243,11 @@ def explain_gap(
     for _ in range(MAX_ROUNDS):
         if not options:
             break
-        best = min(options, key=lambda n: float(options[n][1].mean()))
-        params, after = options[best]
-        row = _row(best, params, current, after, seed)
-        if row.gap_before - row.gap_after < threshold or row.ci_low <= 0:
+        row = _pick(options, selected, current, threshold, base_held, seed)
+        if row is None:
             break
-        ranking.append(_confusable(row, after, current, options, threshold, seed))
+        ranking.append(row)
+        best, (params, after) = row.effect, options[row.effect]
         selected[best] = params
         current = after
         if float(current.mean()) < threshold:  # nothing left that could pass the threshold
@@ -282,6 +291,50 @@ def explain_gap(
         background_note=background_note,
         sim_optics=sim_optics_report(base_fit),
     )
+
+
+def _pick(
+    options: Mapping[str, tuple[dict[str, float], torch.Tensor]],
+    selected: Mapping[str, Mapping[str, float]],
+    current: torch.Tensor,
+    threshold: float,
+    base: Base,
+    seed: int,
+) -> EffectFit | None:
+    """This round's effect: the one leaving least of the held-out gap, unless rivals the
+    data cannot tell from it (``_confusable``) hold one with fewer fitted numbers; then the
+    simplest of them (the data do not ask for the extra freedom: Hastie, Tibshirani &
+    Friedman, *The Elements of Statistical Learning*, sec. 7.10, the one-standard-error
+    rule). None when no effect passes the selection rule."""
+    images: dict[str, torch.Tensor | None] = {}
+
+    def image_of(name: str) -> torch.Tensor | None:
+        if name not in images:
+            effects = {**selected, name: options[name][0]}
+            images[name] = (
+                None if any(get_candidate(n).stochastic for n in effects) else render(base, effects)
+            )
+        return images[name]
+
+    def row_of(name: str) -> EffectFit:
+        params, after = options[name]
+        row = _row(name, params, current, after, seed)
+        return _confusable(row, after, current, options, threshold, seed, image_of)
+
+    def passes(row: EffectFit) -> bool:
+        return row.gap_before - row.gap_after >= threshold and row.ci_low > 0
+
+    best = min(options, key=lambda n: float(options[n][1].mean()))
+    row = row_of(best)
+    if not passes(row):
+        return None
+    cost = {n: get_candidate(n).fitted_numbers(base) for n in [best, *row.confusable_with]}
+    simplest = min(cost, key=lambda n: (cost[n], float(options[n][1].mean())))
+    if cost[simplest] < cost[best]:
+        alternative = row_of(simplest)
+        if passes(alternative):
+            return alternative
+    return row
 
 
 BACKGROUND_LINE = "measured_background"
