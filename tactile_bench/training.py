@@ -261,7 +261,9 @@ class GuardedCheckpoint(Callback):
                 self._position = {"epoch_state": self.sampler.next_epoch_state(), "skip": 0}
             else:
                 self._position = {"epoch_state": self.sampler.epoch_state, "skip": done}
-        trainer.save_checkpoint(self.path)
+        # weights_only=False said, not defaulted: resume needs optimizer and callback state,
+        # and Lightning logs "`weights_only` was not set" at every save otherwise
+        trainer.save_checkpoint(self.path, weights_only=False)
         self.saved_step = trainer.global_step
         log.debug("%s: checkpoint at step %d -> %s", self.what, self.saved_step, self.path)
 
@@ -337,6 +339,43 @@ def _stop_on_sigint(guard: GuardedCheckpoint) -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
+#: the start of the notice every ``lightning.Trainer`` without a LitLogger logs (an
+#: advertisement for Lightning's cloud service; no Trainer argument turns it off)
+LITLOGGER_TIP = "💡 Tip: For seamless cloud logging"
+#: the logger Lightning's ``rank_zero_info`` writes to
+RANK_ZERO_LOGGER = "lightning.pytorch.utilities.rank_zero"
+#: torch 2.13 deprecates ``LeafSpec``, which Lightning's ``_pytree`` still builds at every
+#: fit; a notice to Lightning's developers, not to our users
+LEAFSPEC_DEPRECATION = r"`isinstance\(treespec, LeafSpec\)` is deprecated"
+
+
+class _DropLitLoggerTip(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith(LITLOGGER_TIP)
+
+
+@contextmanager
+def lightning_notices_off() -> Iterator[None]:
+    """Keep two third-party notices out of a fit's output, and only those: Lightning's
+    litlogger tip (filtered on the logger that writes it) and torch's ``LeafSpec``
+    deprecation raised inside Lightning (filtered by exact message and module). Every other
+    warning and log line still shows."""
+    logger = logging.getLogger(RANK_ZERO_LOGGER)
+    tip = _DropLitLoggerTip()
+    logger.addFilter(tip)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings(
+                "ignore",
+                message=LEAFSPEC_DEPRECATION,
+                category=FutureWarning,
+                module=r"lightning\.pytorch\.utilities\._pytree",
+            )
+            yield
+    finally:
+        logger.removeFilter(tip)
+
+
 def _share_tensors_through_files(strategy: Any) -> None:
     """Spawned DDP workers receive the data through shared memory; torch's default passes
     file descriptors, which fail in containers ("unable to resize file"). Files in
@@ -373,8 +412,9 @@ def resumable_fit(
     if step is not None:
         log.info("%s: resuming from %s (step %d)", what, path, step)
     _share_tensors_through_files(settings.get("strategy"))
-    trainer = L.Trainer(**settings)
-    with _stop_on_sigint(guard), warnings.catch_warnings():
+    with lightning_notices_off():
+        trainer = L.Trainer(**settings)
+    with _stop_on_sigint(guard), lightning_notices_off(), warnings.catch_warnings():
         # Lightning cannot see that our sampler resumes mid-epoch exactly; its warning is moot
         warnings.filterwarnings("ignore", message="You're resuming from a checkpoint that ended")
         try:
