@@ -36,7 +36,11 @@ class PoseError(Effect):
         "normal; backlash and compliance add a random part per contact. The paper names this "
         "misalignment between the TACTO depth and the real image as its main residual."
     )
-    _src = "DESIGN.md sec. 3 ('a few tenths of a mm, a degree of yaw'); Higuera et al. 2023 sec. V"
+    _src = (
+        "estimate: fixturing and hand-eye calibration leave a few tenths of a mm and a degree of "
+        "yaw (not measured here); Higuera et al. 2023 sec. V name this depth-image misalignment "
+        "their main residual"
+    )
     params = (
         Param("offset_x_mm", "mm", 0.25, -2.0, 2.0, 0.0, _src, "constant offset along x"),
         Param("offset_y_mm", "mm", -0.15, -2.0, 2.0, 0.0, _src, "constant offset along y"),
@@ -77,8 +81,8 @@ class PressDepthError(Effect):
         "contact. The simulator takes the commanded depth literally."
     )
     _src = (
-        "estimate: DESIGN.md sec. 3 (force control); ~10-20% depth scatter of force-"
-        "controlled presses on a 4.6 mm silicone gel (Lambeta et al. 2020, DIGIT)"
+        "estimate: force control, not position, sets the penetration; ~10-20% depth scatter of "
+        "force-controlled presses on a 4.6 mm silicone gel (Lambeta et al. 2020, DIGIT)"
     )
     params = (
         Param("depth_scale", "1", 0.85, 0.5, 1.5, 1.0, _src, "real / commanded depth"),

@@ -38,12 +38,12 @@ def _plain(levels: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
 PRESETS: dict[str, UNetSpec] = {
     # CI and contract tests: a few thousand parameters, milliseconds a step.
     "tiny": UNetSpec((8, 16), 1, *_plain(2), norm_num_groups=4),
-    # This laptop: about 1.1 M parameters, no attention (DESIGN.md section 6).
+    # Sized for a laptop CPU: about 1.1 M parameters, no attention.
     "cpu": UNetSpec((32, 64, 64), 1, *_plain(3)),
     # Half the channels at the two full-resolution levels: 0.62 M parameters; in fp32 on an
     # AVX2 CPU it trains 2.5x and samples 2.7x faster than "cpu" (see docs/results/bench.md).
     "cpu-small": UNetSpec((16, 32, 64), 1, *_plain(3)),
-    # DESIGN.md's 6.3 M network: 2 ResNet blocks a stage, attention at 16 x 16 (for 64 x 64).
+    # 6.3 M parameters: 2 ResNet blocks a stage, attention at 16 x 16 (for 64 x 64).
     "medium": UNetSpec(
         (32, 64, 128, 128),
         2,
