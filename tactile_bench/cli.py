@@ -29,7 +29,7 @@ EXIT_USER_ERROR = 2
 COMMAND_MODULES: tuple[str, ...] = (
     "tactile_bench.diagnose.commands",
     "tactile_bench.read.commands",
-    "tactile_bench.data.check",
+    "tactile_bench.check",
     "tactile_bench.bench.commands",
 )
 

@@ -1,7 +1,7 @@
 """Building the YCB-Slide stand-in corpus in worker processes, one object (or part) a job.
 
 Each 64-frame chunk of a trajectory depends only on the object's seed, the trajectory and
-the chunk (``ycb_slide.chunk_generator``), so objects, and the chunks of one object when
+the chunk (``ycb_frames.chunk_generator``), so objects, and the chunks of one object when
 there are fewer objects than workers, can be built in any order and in any process with the
 same corpus; a trajectory split over jobs is joined by the caller. Ray casting holds the GIL
 (``embreex``), so processes, not threads, are what puts both cores to work. Workers are
@@ -33,12 +33,12 @@ from tactile_bench.sensor.timing import StageTimer, active_timer
 from tactile_bench.sensor.timing import stage as timed
 
 from .pairs import PairSet, to_uint8
-from .ycb_slide import (
+from .ycb_frames import (
     TRAJECTORY_CHUNK,
     StandinConfig,
     SurfaceSensor,
-    _trajectory_pairs,
     trajectory_chunks,
+    trajectory_pairs,
 )
 
 #: a part of one trajectory: (trajectory, first chunk, stop chunk), ``TRAJECTORY_CHUNK``s
@@ -141,7 +141,7 @@ def _build_object(job: ObjectJob) -> Built:
     whole = trajectory_chunks(config.frames_per_trajectory)
     try:
         for k, first, stop in job.todo:
-            out = _trajectory_pairs(
+            out = trajectory_pairs(
                 renderer,
                 trajs[k],
                 gel,

@@ -30,6 +30,15 @@ from tactile_bench.io import atomic_write_npz, load_npz
 _FORMAT = 1
 
 
+def embree_available() -> bool:
+    """Whether the fast backend can be used (``pip install embreex``)."""
+    try:
+        import embreex  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 @dataclass
 class HeightFieldBank:
     """One height map per label: ``maps`` (L, 1, H, W) float32 mm over a square extent."""
@@ -111,8 +120,6 @@ def raycast_heights(
     here). Both give the same heights to ~1e-6 mm; Embree ~10x faster. Rays that miss get
     ``miss``. ``backend``: ``"auto"`` (Embree when installed), ``"embree"`` or ``"pybullet"``.
     """
-    from tactile_bench.sensor.mesh_depth import embree_available
-
     if backend not in ("auto", "embree", "pybullet"):
         raise TactileBenchError(f"raycast_heights: unknown backend {backend!r}")
     if backend == "embree" or (backend == "auto" and embree_available()):

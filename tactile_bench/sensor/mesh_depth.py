@@ -39,16 +39,8 @@ import torch
 
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec
+from tactile_bench.sensor.heightfield import embree_available
 from tactile_bench.sensor.timing import stage as timed
-
-
-def embree_available() -> bool:
-    """Whether the fast backend can be used (``pip install embreex``)."""
-    try:
-        import embreex  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 def _pixel_grid(gel: GelSpec) -> tuple[np.ndarray, np.ndarray]:

@@ -4,6 +4,11 @@ usable, before a long run finds out at 3 a.m.
 The layout is recognised from the path (``--layout`` forces one). Every file is read the way
 the pipeline reads it, so the first problem is the same one-line error (naming the file) that
 the run would hit. ``--skip-bad`` instead skips bad samples of a dataset folder and lists them.
+
+A command of the application layer (it reads what every layer reads: data, paired sets,
+recipes, checkpoints), not of ``data/``. Each reader imports its layer inside the function
+on purpose: the CLI imports this module to build its parser, and ``--help`` must not load
+torch.
 """
 
 from __future__ import annotations
