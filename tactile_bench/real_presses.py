@@ -15,8 +15,12 @@ import torch
 import torch.nn.functional as F
 
 from tactile_bench.data.ball_presses import TAXIM_SENSORS, BallPresses, load_ball_presses
+from tactile_bench.data.pairs import load_pairs
+from tactile_bench.data.ycb_slide import build_ycb_slide_standin
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.metrics.encoder import fit_encoder, kid
+from tactile_bench.metrics.image import ssim_mse
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.press_grounding import (
     contact_mask,
@@ -28,6 +32,8 @@ from tactile_bench.sensor.press_grounding import (
     summarise,
 )
 from tactile_bench.sensor.surrogate import SurrogateDigit
+from tactile_bench.translators.base import image_to_foreground
+from tactile_bench.translators.registry import create_translator
 
 FIT_HW = (96, 128)  # a fifth of the 480 x 640 frame, 4:3 kept: the size the fits run at
 SOURCE = "taxim 1.4.1 (PyPI, MIT), taxim/calib/{gelsight,gelsight_mini}/ dataPack.npz, params.json"
@@ -159,9 +165,6 @@ def _image_rows(
     images: dict[str, torch.Tensor], real: torch.Tensor, encoder_images: torch.Tensor
 ) -> dict[str, dict]:
     """SSIM, MSE (paired) and KID (encoder fitted on the fitting half's real frames)."""
-    from tactile_bench.metrics.encoder import fit_encoder, kid
-    from tactile_bench.metrics.image import ssim_mse
-
     encoder = fit_encoder(encoder_images, steps=200, batch_size=min(64, len(encoder_images)))
     with torch.no_grad():
         real_features = encoder.features(real)
@@ -192,11 +195,6 @@ def translators_on_presses(
     the held-out half against its real frames, each composited on the real no-contact
     frame: plain sim, the calibrated sim, the cGAN, the diffusion translator.
     """
-    from tactile_bench.data.pairs import load_pairs
-    from tactile_bench.data.ycb_slide import build_ycb_slide_standin
-    from tactile_bench.translators.base import image_to_foreground
-    from tactile_bench.translators.registry import create_translator
-
     start = time.perf_counter()
     profile = SurrogateDigit.from_profile(sensor)
     presses = load_ball_presses(sensor, 2 * size)

@@ -28,12 +28,18 @@ import torch
 
 from tactile_bench import allocator
 from tactile_bench.bench import sampling, simulation, training
+from tactile_bench.bench.report import render_markdown
 from tactile_bench.bench.threads import thread_settings
 from tactile_bench.bench.timing import torch_threads
 from tactile_bench.data.braille import BrailleSet, build_braille_sets
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.hardware import machine_compute
 from tactile_bench.io import atomic_write_json, atomic_write_text
+from tactile_bench.sensor.background import sim_background
+from tactile_bench.sensor.depth import GelSpec
+from tactile_bench.sensor.heightfield import build_bank
+from tactile_bench.sensor.optics import SimOptics
+from tactile_bench.sensor.surrogate import SurrogateDigit
 from tactile_bench.translators.diffusion import DiffusionConfig, DiffusionTranslator
 
 SECTIONS = ("simulation", "sampling", "threads", "training", "scaling")
@@ -172,11 +178,6 @@ def braille_data(path: str | None, cfg: BenchConfig, progress: bool) -> dict[str
             return sets
     else:
         sets = {}
-    from tactile_bench.sensor.background import sim_background
-    from tactile_bench.sensor.depth import GelSpec
-    from tactile_bench.sensor.heightfield import build_bank
-    from tactile_bench.sensor.optics import SimOptics
-    from tactile_bench.sensor.surrogate import SurrogateDigit
 
     gel = GelSpec()
     built = build_braille_sets(
@@ -245,8 +246,6 @@ def run_bench(
 
     ``command`` is the command line to print in bench.md (the CLI passes its own).
     """
-    from tactile_bench.bench.report import render_markdown
-
     unknown = sorted(set(sections) - set(SECTIONS))
     if unknown:
         raise TactileBenchError(f"--only: unknown sections {unknown}; known: {list(SECTIONS)}")

@@ -22,6 +22,10 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from tactile_bench.bench.sampling import Case, run_case
+from tactile_bench.data.braille import BrailleSet
+from tactile_bench.translators.diffusion import DiffusionTranslator
+
 # name -> (threads, OMP_WAIT_POLICY or None for the runtime's default)
 SETTINGS: dict[str, tuple[int, str | None]] = {
     "1 thread": (1, None),
@@ -67,10 +71,6 @@ def thread_settings(translator: Any, data: Any, repeats: int) -> list[dict[str, 
 
 def _probe(model_path: str, data_path: str, threads: int, repeats: int) -> dict[str, Any]:
     import torch
-
-    from tactile_bench.bench.sampling import Case, run_case
-    from tactile_bench.data.braille import BrailleSet
-    from tactile_bench.translators.diffusion import DiffusionTranslator
 
     torch.set_num_threads(threads)
     model = DiffusionTranslator.load(model_path).eval()

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from tactile_bench.data.images import open_image
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.sensor.depth import GelSpec
@@ -75,8 +76,6 @@ def _sample_error(exc: TactileBenchError, where: Path, skipped: Skipped | None) 
 def _background_size(bg_path: Path) -> SameSize:
     """Frames must have their background's size: the original subtracts it at full size
     (``compute_diff`` in ``dataio_braille.py`` and ``braille_clf``), which fails otherwise."""
-    from .images import open_image
-
     same = SameSize("frames and their background (subtracted before resizing, as the original)")
     same.check(bg_path, open_image(bg_path).size)
     return same

@@ -24,6 +24,7 @@ from torch import nn
 
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.pipeline.stages.classify import load_classifier
 
 AGGREGATION = "mean log-probability of the frames within +-pitch/4 of the cell centre"
 FIT_HINT = "run `python -m tactile_bench fit recipes/quick.yaml` (or recipes/table1.yaml) first"
@@ -58,8 +59,6 @@ def find_model(run_dir: str | Path, row: str = "diffusion", seed: int = 0) -> Pa
 
 def load_model(path: str | Path) -> nn.Module:
     """A classifier written by a classify stage (``model_seed{n}.pt``), in eval mode."""
-    from tactile_bench.pipeline.stages.classify import load_classifier
-
     path = Path(path)
     if not path.is_file():
         raise TactileBenchError(f"{path}: no such model file; {FIT_HINT}, or pass another --model")

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from tactile_bench.data.ycb_slide import settle_press
 from tactile_bench.geometry.braille import BrailleSpec
 from tactile_bench.geometry.contacts import Poses
 from tactile_bench.geometry.objects import object_mesh, object_parts
@@ -46,8 +47,6 @@ def braille_heights(chars: Sequence[str], gel: GelSpec) -> torch.Tensor:
 
 def object_height(name: str, gel: GelSpec, seed: int = 0) -> torch.Tensor:
     """Signed height of the frame of a sliding trajectory with the largest contact patch."""
-    from tactile_bench.data.ycb_slide import settle_press
-
     parts = object_parts(name, seed)
     (trajectory,) = sliding_trajectories(
         exposed_surface(parts), name, n_trajectories=1, n_frames=60, seed=seed

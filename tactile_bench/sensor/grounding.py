@@ -15,6 +15,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from tactile_bench.data.images import RGB_MODES, open_image
+from tactile_bench.effects._optics_fit import N_HARM, N_MAG, RESPONSE_WEIGHTS
+from tactile_bench.effects.optics import fitted_response
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.io import load_npz
+from tactile_bench.sensor.background import digit_background
+
 BACKGROUND_FILE = "digit_background_240x320.jpg"
 POLYCALIB_FILE = "digit_polycalib.npz"
 # Taxim's polycalib pixel frame, taken as the DIGIT portrait frame (240 wide x 320 high),
@@ -37,9 +44,6 @@ def default_real_dir() -> Path | None:
 
 def load_real_background(real_dir: Path | str | None = None) -> np.ndarray | None:
     """The real no-contact frame as float (H=320, W=240, 3) in 0..255, or None if absent."""
-    from tactile_bench.data.images import RGB_MODES, open_image
-    from tactile_bench.errors import TactileBenchError
-
     d = Path(real_dir) if real_dir is not None else default_real_dir()
     if d is None or not (d / BACKGROUND_FILE).exists():
         return None
@@ -57,9 +61,6 @@ def load_polycalib(real_dir: Path | str | None = None) -> np.ndarray | None:
     d = Path(real_dir) if real_dir is not None else default_real_dir()
     if d is None or not (d / POLYCALIB_FILE).exists():
         return None
-    from tactile_bench.errors import TactileBenchError
-    from tactile_bench.io import load_npz
-
     z = load_npz(d / POLYCALIB_FILE, ("grad_r", "grad_g", "grad_b"))
     try:
         table = np.stack([z["grad_r"], z["grad_g"], z["grad_b"]], 0).astype(np.float64)
@@ -94,8 +95,6 @@ def background_report(real_dir: Path | str | None = None, unit: str = "digit") -
     ``rmse`` compares with the raw frame (includes JPEG texture and sharp rim features).
     """
     from scipy.ndimage import gaussian_filter
-
-    from tactile_bench.sensor.background import digit_background
 
     real = load_real_background(real_dir)
     if real is None:
@@ -169,8 +168,6 @@ def optical_response_report(real_dir: Path | str | None = None) -> dict | None:
     Evaluated over all 125 x 125 gradient bins at a 9 x 11 grid of positions spanning the
     frame; also restricted to slopes below 60 deg (the range a ball calibration observes).
     """
-    from tactile_bench.effects._optics_fit import N_HARM, N_MAG, RESPONSE_WEIGHTS
-
     table = load_polycalib(real_dir)
     if table is None:
         return None
@@ -203,8 +200,6 @@ def surrogate_response_report(
     the torch implementation shows up here and not only in the numpy fit. ``grid`` is the
     number of positions across x and y (coarser than the fit report's 9 x 11, for speed).
     """
-    from tactile_bench.effects.optics import fitted_response
-
     table = load_polycalib(real_dir)
     if table is None:
         return None

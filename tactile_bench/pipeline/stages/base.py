@@ -5,14 +5,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict
 
 from tactile_bench.errors import TactileBenchError
-
-if TYPE_CHECKING:
-    from tactile_bench.sensor.surrogate import SurrogateDigit
+from tactile_bench.sensor.surrogate import SurrogateDigit
 
 
 class StageConfig(BaseModel):
@@ -72,8 +70,6 @@ def resolve_source(source: str, base_dir: Path) -> Path:
 def real_sensor(profile: str, base_dir: Path) -> SurrogateDigit:
     """A data stage's ``real_sensor``: a built-in profile name, or a YAML path read relative
     to the recipe's folder (as every other path in a recipe), not the working directory."""
-    from tactile_bench.sensor.surrogate import SurrogateDigit
-
     if Path(profile).suffix:
         return SurrogateDigit.from_profile(resolve_source(profile, base_dir))
     return SurrogateDigit.from_profile(profile)

@@ -13,6 +13,8 @@ from pydantic import Field
 
 from tactile_bench.classify.train import ClassifierConfig, classifier_precision
 from tactile_bench.data.braille import BrailleSet
+from tactile_bench.diagnose.paired import braille_stage_chars, from_braille_set
+from tactile_bench.diagnose.run import check_candidates, diagnose, stratified_split
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
@@ -30,17 +32,12 @@ class DiagnoseConfig(StageConfig):
 
 
 def _check(config: DiagnoseConfig, base_dir: Path) -> None:
-    from tactile_bench.diagnose.run import check_candidates
-
     if config.set not in SETS:
         raise TactileBenchError(f"set: {config.set!r} is not one of {', '.join(SETS)}")
     check_candidates(config.candidates, "candidates")
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
-    from tactile_bench.diagnose.paired import braille_stage_chars, from_braille_set
-    from tactile_bench.diagnose.run import diagnose, stratified_split
-
     config: DiagnoseConfig = ctx.config
     data_stage = ctx.input("data")
     chars = braille_stage_chars(data_stage.directory) or CHARACTERS
