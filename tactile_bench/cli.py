@@ -90,10 +90,13 @@ def _list_recipes() -> None:
 
 def _list_stages() -> None:
     from tactile_bench.pipeline.stages import STAGES
+    from tactile_bench.pipeline.stages.base import config_keys
 
-    print("stage kinds:")
+    print("stage kinds (below each: its `config:` keys, default  # meaning):")
     for name, kind in STAGES.items():
         print(f"  {name:<14} {kind.description}")
+        for key in config_keys(kind.config_model):
+            print(f"      {key.key}: {key.default}  # {key.description}")
 
 
 LISTINGS: dict[str, Callable[[], None]] = {

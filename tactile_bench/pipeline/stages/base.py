@@ -19,6 +19,30 @@ class StageConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+@dataclass(frozen=True)
+class ConfigKey:
+    """One key a recipe may set on a stage: its dotted name, default and description."""
+
+    key: str
+    default: str
+    description: str
+
+
+def config_keys(model: type[BaseModel], prefix: str = "") -> list[ConfigKey]:
+    """Every key of a stage config, nested configs as ``classifier.lr``: what ``list stages``
+    prints, so a recipe's keys are documented where they are defined (``Field(description)``).
+    """
+    keys = []
+    for name, field_info in model.model_fields.items():
+        sub = field_info.annotation
+        if isinstance(sub, type) and issubclass(sub, BaseModel):
+            keys += config_keys(sub, f"{prefix}{name}.")
+            continue
+        default = "required" if field_info.is_required() else repr(field_info.get_default())
+        keys.append(ConfigKey(prefix + name, default, field_info.description or ""))
+    return keys
+
+
 @dataclass
 class StageResult:
     """A finished stage: where its files are, what they are, and a few figures it measured."""

@@ -58,15 +58,35 @@ class BrailleDataConfig(StageConfig):
     """Which characters, how many fine-tuning/test contacts, and which sensor plays "real"
     (``source: surrogate``), or a folder of real data in the Tactile-Diffusion layout."""
 
-    source: str = "surrogate"
-    chars: str = Field(default="".join(CHARACTERS), min_length=2)
-    n_finetune: int = Field(default=1080, ge=1)
-    n_test: int = Field(default=837, ge=1)
-    n_classifier: int | None = Field(default=None, ge=1, description="None: the whole grid")
-    n_classifier_test: int = Field(default=837, ge=1)
-    real_sensor: str = "digit"
-    image_size: int = Field(default=64, ge=16, le=256)
-    oversample: int = Field(default=2, ge=1, le=8)
+    source: str = Field(
+        default="surrogate",
+        description="surrogate: render every set with real_sensor playing 'real'; or a folder "
+        "of real data in the Tactile-Diffusion layout (docs/real_data.md)",
+    )
+    chars: str = Field(
+        default="".join(CHARACTERS), min_length=2, description="braille characters, one a class"
+    )
+    n_finetune: int = Field(
+        default=1080, ge=1, description="contacts of the paired fine-tuning pool (yaw to 90 deg)"
+    )
+    n_test: int = Field(
+        default=837, ge=1, description="contacts of the paired test set the translators' SSIM uses"
+    )
+    n_classifier: int | None = Field(
+        default=None,
+        ge=1,
+        description="classifier training contacts, a stratified draw; None: the whole grid",
+    )
+    n_classifier_test: int = Field(
+        default=837, ge=1, description="upright, off-grid contacts the classifiers are tested on"
+    )
+    real_sensor: str = Field(
+        default="digit", description="surrogate profile playing 'real': a name or a YAML path"
+    )
+    image_size: int = Field(default=64, ge=16, le=256, description="image side in pixels")
+    oversample: int = Field(
+        default=2, ge=1, le=8, description="depth rendered at this many times the image size"
+    )
     sim_source: Literal["simulate", "release"] = Field(
         default="simulate",
         description="release: also read sim_tacto/color (the paper's Sim row images)",

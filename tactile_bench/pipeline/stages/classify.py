@@ -51,32 +51,51 @@ log = logging.getLogger("tactile_bench")
 class ClassifierSettings(StageConfig):
     """The classifier's architecture and optimisation (see classify.train.ClassifierConfig)."""
 
-    width: int = Field(default=16, ge=1)
-    blocks: tuple[int, int, int, int] = (2, 2, 2, 2)
-    lr: float = Field(default=1e-3, gt=0)
-    batch_size: int = Field(default=20, ge=1)
-    epochs: int = Field(default=4, ge=1)
-    precision: Precision = "auto"  # auto: bf16 only where the CPU has it (hardware.py)
+    width: int = Field(default=16, ge=1, description="channels of the ResNet's first stage")
+    blocks: tuple[int, int, int, int] = Field(
+        default=(2, 2, 2, 2), description="residual blocks per stage (ResNet-18: 2, 2, 2, 2)"
+    )
+    lr: float = Field(default=1e-3, gt=0, description="Adam learning rate")
+    batch_size: int = Field(default=20, ge=1, description="images a step")
+    epochs: int = Field(default=4, ge=1, description="epochs of the base training")
+    precision: Precision = Field(
+        default="auto", description="auto: bf16 where the CPU has bf16 arithmetic, else fp32"
+    )
 
 
 class ClassifyConfig(StageConfig):
     """Which row of the table this is, what it trains on, and over which seeds."""
 
-    row: str
-    train_images: Literal["translated", "sim", "real"] = "translated"
+    row: str = Field(description="the row of the table this stage fills (e.g. Sim)")
+    train_images: Literal["translated", "sim", "real"] = Field(
+        default="translated", description="images trained on: a translate stage's, sim or real"
+    )
     # sim_release: the release's TACTO frames (braille_data sim_source: release), train_images: sim
-    train_set: Literal["classifier", "finetune", "sim_release"] = "classifier"
-    finetune_fraction: float = Field(default=0.0, ge=0.0, le=1.0)
-    finetune_epochs: int = Field(default=4, ge=1)
-    seeds: list[int] = Field(default=[0], min_length=1)
+    train_set: Literal["classifier", "finetune", "sim_release"] = Field(
+        default="classifier", description="braille set trained on"
+    )
+    finetune_fraction: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="share of the real fine-tuning pool to fine-tune on afterwards; 0: none",
+    )
+    finetune_epochs: int = Field(default=4, ge=1, description="epochs of that fine-tuning")
+    seeds: list[int] = Field(
+        default=[0], min_length=1, description="one classifier a seed; the table gives mean +- std"
+    )
     parallel_seeds: int = Field(
         default=1,
         ge=1,
         description="seeds trained at once, each in its own process on cores / N threads "
         "(a small classifier gains little from a second thread); 1: in turn, in this process",
     )
-    heldout_fraction: float = Field(default=0.1, ge=0.0, lt=1.0)
-    classifier: ClassifierSettings = ClassifierSettings()
+    heldout_fraction: float = Field(
+        default=0.1, ge=0.0, lt=1.0, description="share of the training images held out"
+    )
+    classifier: ClassifierSettings = Field(
+        default=ClassifierSettings(), description="architecture and optimisation"
+    )
 
 
 def _has(ctx: StageContext, split: str, what: str) -> bool:

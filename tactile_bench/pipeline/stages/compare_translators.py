@@ -21,8 +21,10 @@ PAPER_SIMILARITY = {"diffusion": (0.908, 36.02), "cgan": (0.879, 47.99)}
 class CompareConfig(StageConfig):
     """How many characters the sample grid shows; how long the KID encoder trains."""
 
-    samples: int = Field(default=8, ge=1, le=27)
-    encoder_steps: int = Field(default=300, ge=1)
+    samples: int = Field(default=8, ge=1, le=27, description="characters in the sample grid")
+    encoder_steps: int = Field(
+        default=300, ge=1, description="training steps of the KID feature encoder"
+    )
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:

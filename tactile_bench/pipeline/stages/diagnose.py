@@ -24,11 +24,19 @@ from tactile_bench.pipeline.stages.braille_data import SETS
 class DiagnoseConfig(StageConfig):
     """Which set to diagnose, which candidate effects, and whether to run the classifier part."""
 
-    set: str = "test"
-    downstream: bool = True
-    candidates: list[str] | None = None
-    fit_fraction: float = Field(default=0.5, gt=0.0, lt=1.0)
-    max_pairs: int | None = Field(default=None, ge=4)
+    set: str = Field(default="test", description="braille set of the data stage to diagnose")
+    downstream: bool = Field(
+        default=True, description="also train classifiers on sim + the effects found"
+    )
+    candidates: list[str] | None = Field(
+        default=None, description="candidate effects; None: all (see `list effects`)"
+    )
+    fit_fraction: float = Field(
+        default=0.5, gt=0.0, lt=1.0, description="share of the pairs to fit on; the rest test"
+    )
+    max_pairs: int | None = Field(
+        default=None, ge=4, description="a stratified subset of this many pairs; None: all"
+    )
 
 
 def _check(config: DiagnoseConfig, base_dir: Path) -> None:

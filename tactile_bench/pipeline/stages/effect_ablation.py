@@ -13,6 +13,7 @@ from typing import Any
 
 import torch
 from matplotlib.figure import Figure
+from pydantic import Field
 
 from tactile_bench.classify.train import evaluate
 from tactile_bench.data.braille import BrailleSet
@@ -30,7 +31,7 @@ from tactile_bench.translators import image_to_foreground
 class AblationConfig(StageConfig):
     """Which classifier seed to probe (the effects are those of the data's real sensor)."""
 
-    seed: int = 0
+    seed: int = Field(default=0, description="the classify stage's seed whose model is probed")
 
 
 def _accuracy(

@@ -35,16 +35,26 @@ from tactile_bench.translators import Translator, create_translator, translator_
 class FitTranslatorConfig(StageConfig):
     """Which translator, its config, and which share of the braille fine-tuning pool it sees."""
 
-    translator: str
-    translator_config: dict[str, Any] = {}
-    fraction: float = Field(default=1.0, gt=0.0, le=1.0)
+    translator: str = Field(description="registered translator name (see `list translators`)")
+    translator_config: dict[str, Any] = Field(
+        default={}, description="the translator's own config (its keys: its config class)"
+    )
+    fraction: float = Field(
+        default=1.0, gt=0.0, le=1.0, description="share of the training pairs to fit on"
+    )
     train_set: Literal["finetune", "split_train"] = Field(
         default="finetune",
         description="braille pairs to fit on: the fine-tuning pool, or (real data) the "
         "translator split's train list, as train_braille.py trains",
     )
-    eval_pairs: int = Field(default=64, ge=0)
-    init_checkpoint: str | None = None
+    eval_pairs: int = Field(
+        default=64, ge=0, description="held-out test pairs scored (SSIM, MSE) at the end; 0: none"
+    )
+    init_checkpoint: str | None = Field(
+        default=None,
+        description="start from this translator file (relative to the recipe) instead of an "
+        "init stage",
+    )
 
 
 def _check(config: FitTranslatorConfig, base_dir: Path) -> None:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import Field
 
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.hardware import machine_compute
@@ -31,8 +32,10 @@ from tactile_bench.report.table import COLUMNS, PAPER_TABLE, results_markdown, t
 class ReportConfig(StageConfig):
     """The report's title and the sentence under it."""
 
-    title: str = "Braille classification on the real test set"
-    description: str = ""
+    title: str = Field(
+        default="Braille classification on the real test set", description="heading of the report"
+    )
+    description: str = Field(default="", description="a sentence under the heading")
 
 
 def _row(result: StageResult) -> dict[str, Any]:

@@ -27,11 +27,21 @@ from tactile_bench.translators import create_translator, translator_class
 class TranslateConfig(StageConfig):
     """Which translator (when none is fitted upstream), which sets, onto which background."""
 
-    translator: str | None = None
-    translator_config: dict[str, Any] = {}
-    sets: list[Literal["finetune", "test", "classifier"]] = ["classifier", "test"]
-    background: Literal["sim", "real"] = "real"
-    batch_size: int = Field(default=256, ge=1)
+    translator: str | None = Field(
+        default=None,
+        description="translator to build when no fit stage is connected (e.g. sim); None: the "
+        "fitted one",
+    )
+    translator_config: dict[str, Any] = Field(
+        default={}, description="its config, for a translator built here"
+    )
+    sets: list[Literal["finetune", "test", "classifier"]] = Field(
+        default=["classifier", "test"], description="braille sets to translate"
+    )
+    background: Literal["sim", "real"] = Field(
+        default="real", description="no-contact frame the images are composed on"
+    )
+    batch_size: int = Field(default=256, ge=1, description="contacts translated at a time")
 
 
 def _check(config: TranslateConfig, base_dir: Path) -> None:

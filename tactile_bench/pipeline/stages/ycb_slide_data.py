@@ -50,12 +50,22 @@ class YcbSlideConfig(StageConfig):
     """The corpus: the procedural stand-in (``source: surrogate``) with its size, objects and
     surrogate unit, or real recordings in the original YCB-Slide layout (``source: PATH``)."""
 
-    source: str = "surrogate"
+    source: str = Field(
+        default="surrogate",
+        description="surrogate: build the procedural stand-in; or a YCB-Slide release folder "
+        "(or Tactile-Diffusion's processed copy of it)",
+    )
     stride: int = Field(default=1, ge=1, description="subsample a real 30 Hz log")
-    n_pairs: int = Field(default=DEFAULT_PAIRS, ge=10)
-    objects: list[str] = list(OBJECTS)
-    real_sensor: str = "digit"
-    image_size: int = Field(default=64, ge=16, le=256)
+    n_pairs: int = Field(
+        default=DEFAULT_PAIRS, ge=10, description="stand-in (depth, real) pairs (the paper: 180000)"
+    )
+    objects: list[str] = Field(
+        default=list(OBJECTS), description="YCB objects to slide over (see `list`)"
+    )
+    real_sensor: str = Field(
+        default="digit", description="surrogate profile playing 'real': a name or a YAML path"
+    )
+    image_size: int = Field(default=64, ge=16, le=256, description="image side in pixels")
     skip_bad: bool = Field(default=False, description="drop unreadable frames, listed in skipped")
 
 
