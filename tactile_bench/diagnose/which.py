@@ -302,10 +302,11 @@ def _pick(
     seed: int,
 ) -> EffectFit | None:
     """This round's effect: the one leaving least of the held-out gap, unless rivals the
-    data cannot tell from it (``_confusable``) hold one with fewer fitted numbers; then the
-    simplest of them (the data do not ask for the extra freedom: Hastie, Tibshirani &
-    Friedman, *The Elements of Statistical Learning*, sec. 7.10, the one-standard-error
-    rule). None when no effect passes the selection rule."""
+    data cannot tell from it (``_confusable``) that leave at most rounding's worth of gap
+    more (``PIXEL_NOISE`` squared) hold one with fewer fitted numbers; then the simplest of
+    them (the data do not ask for the extra freedom: Hastie, Tibshirani & Friedman, *The
+    Elements of Statistical Learning*, sec. 7.10, the one-standard-error rule). None when
+    no effect passes the selection rule."""
     images: dict[str, torch.Tensor | None] = {}
 
     def image_of(name: str) -> torch.Tensor | None:
@@ -328,7 +329,14 @@ def _pick(
     row = row_of(best)
     if not passes(row):
         return None
-    cost = {n: get_candidate(n).fitted_numbers(base) for n in [best, *row.confusable_with]}
+    # a rival that leaves more than rounding's worth of gap over the best is a different
+    # explanation, however close its images: only the others compete on simplicity
+    within = float(options[best][1].mean()) + PIXEL_NOISE**2
+    cost = {
+        n: get_candidate(n).fitted_numbers(base)
+        for n in [best, *row.confusable_with]
+        if float(options[n][1].mean()) <= within
+    }
     simplest = min(cost, key=lambda n: (cost[n], float(options[n][1].mean())))
     if cost[simplest] < cost[best]:
         alternative = row_of(simplest)
