@@ -328,9 +328,11 @@ def output_locks(ns: argparse.Namespace) -> Iterator[None]:
 
 def check_environment() -> None:
     """Settings of the environment that would fail only after the work (a wandb login)."""
-    from tactile_bench.pipeline.loggers import wandb_enabled
+    if os.environ.get("WANDB_MODE", "").strip().lower() != "online":
+        return
+    from tactile_bench.pipeline.loggers import wandb_enabled  # imports Lightning: only now
 
-    if os.environ.get("WANDB_MODE", "").strip().lower() != "online" or not wandb_enabled():
+    if not wandb_enabled():
         return
     if os.environ.get("WANDB_API_KEY"):
         return
