@@ -15,6 +15,8 @@ import torch
 from tactile_bench.testing import TranslatorContract, tiny_pairs
 from tactile_bench.translators import create_translator, registry
 
+# two small configs, kept compact
+# fmt: off
 TINY_DIFFUSION = {
     "preset": "tiny", "image_size": 32, "max_steps": 2, "batch_size": 4,
     "sampler": "dpmsolver++", "steps": 3,
@@ -23,6 +25,7 @@ TINY_CGAN = {
     "max_steps": 2, "batch_size": 4, "generator_channels": 4, "num_downs": 3,
     "discriminator_channels": 4, "discriminator_layers": 2,
 }
+# fmt: on
 
 
 class TestDiffusionContract(TranslatorContract):
