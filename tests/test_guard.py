@@ -184,3 +184,35 @@ def test_the_working_folder_is_locked_from_inside(
     with OutputLock(Path("."), "--out"):
         assert (tmp_path / ".tactile_bench.lock").exists()
     assert not any(tmp_path.parent.glob(f".{tmp_path.name}*"))
+
+
+def test_fit_on_a_run_dir_another_process_holds_is_refused_before_any_stage(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "run"
+    recipe = tmp_path / "r.yaml"
+    recipe.write_text(
+        "name: held\nstages:\n  - {name: braille, kind: braille_data, config: {chars: AB, "
+        "n_finetune: 4, n_test: 4, n_classifier: 4, n_classifier_test: 4}}\n"
+    )
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import time; from tactile_bench.guard.outputs import OutputLock\n"
+            f"with OutputLock({str(run)!r}, 'run dir'):\n"
+            "    print('held', flush=True); time.sleep(30)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        capsys.readouterr()
+        assert main(["fit", str(recipe), "--run-dir", str(run), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert f"run dir {run}: in use by process {holder.pid}" in err
+        assert not run.exists()  # no stage started
+    finally:
+        holder.kill()
+        holder.wait()
