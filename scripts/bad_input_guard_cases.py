@@ -325,8 +325,8 @@ def c_set_seed(tmp: Path) -> list[str]:
 
 
 def c_set_bomb(tmp: Path) -> list[str]:
-    laughs = "[" + ", ".join(["*a"] * 9) + "]"
-    return fit_args(tmp, BRAILLE_STAGE) + ["--set", "braille.notes=" + "&a [1, 2] " + laughs]
+    levels = ["&l0 [lol, lol]"] + [f"&l{i} [{', '.join([f'*l{i - 1}'] * 9)}]" for i in range(1, 10)]
+    return fit_args(tmp, BRAILLE_STAGE) + ["--set", f"braille.notes=[{', '.join(levels)}]"]
 
 
 # ----------------------------------------------------------------------------- duplicates

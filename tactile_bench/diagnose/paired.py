@@ -208,9 +208,13 @@ def _listing(folder: Path) -> dict[str, tuple[str, Path]]:
             unicodedata.normalize("NFC", path.stem).casefold(),
         )
         if ident in seen:
+            other = seen[ident]
+            how = "upper/lower case" if other.stem != path.stem else "label folder"
+            if other.stem.casefold() != path.stem.casefold():
+                how = "Unicode form (NFC/NFD)"
             raise TactileBenchError(
-                f"{path}: the same pair as {seen[ident]} (label {label!r}, name "
-                f"{path.stem!r}); remove one"
+                f"{path}: the same pair as {other} (label {label!r}, name {path.stem!r}; they "
+                f"differ only in {how}); remove one"
             )
         seen[ident] = path
         out[str(path.relative_to(folder))] = (label, path)

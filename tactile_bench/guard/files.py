@@ -29,4 +29,4 @@ def require_not_special(path: str | os.PathLike[str], what: str) -> None:
     """Refuse ``path`` when it is a FIFO, device or socket (before anything opens it)."""
     kind = special_kind(path)
     if kind is not None:
-        raise TactileBenchError(f"{path}: {kind}; a {what} must be a regular file or folder")
+        raise TactileBenchError(f"{path}: {kind}, not a file or folder a {what} is read from")
