@@ -34,3 +34,20 @@ def test_list_stages_prints_each_key_with_default_and_meaning(
     for kind in STAGES.values():
         for key in config_keys(kind.config_model):
             assert f"      {key.key}: {key.default}  # {key.description}" in out
+
+
+def test_a_mistyped_key_is_answered_with_the_nearest_key_and_its_meaning(tmp_path) -> None:
+    from tactile_bench.errors import TactileBenchError
+    from tactile_bench.pipeline.recipe import load_recipe
+
+    recipe = tmp_path / "r.yaml"
+    recipe.write_text(
+        "name: typo\nstages:\n  - name: c\n    kind: classify\n"
+        "    config: {row: Sim, classifier: {lrr: 0.1}}\n"
+    )
+    with pytest.raises(TactileBenchError) as info:
+        load_recipe(recipe)
+    message = str(info.value)
+    assert "config.classifier.lrr: Extra inputs are not permitted" in message
+    assert "did you mean classifier.lr (Adam learning rate)?" in message
+    assert "\n" not in message

@@ -19,6 +19,7 @@ the file and the key.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ from tactile_bench.guard.limits import check_seed
 from tactile_bench.guard.recipes import check_name, check_stage, check_trainer
 from tactile_bench.guard.safe_yaml import load_yaml_file, load_yaml_text
 from tactile_bench.pipeline.stages import STAGES, StageKind
+from tactile_bench.pipeline.stages.base import config_keys
 
 
 class _StageDoc(BaseModel):
@@ -87,6 +89,19 @@ def _first_error(exc: ValidationError, prefix: str) -> str:
     first = exc.errors()[0]
     key = _loc([prefix, *first["loc"]] if prefix else first["loc"])
     return f"{key}: {first['msg']}"
+
+
+def _unknown_key_hint(exc: ValidationError, kind: str, model: type[BaseModel]) -> str:
+    """For a key the stage does not take: the nearest key it does take, with what it means,
+    so a typo is answered with the fix, not only with the refusal."""
+    first = exc.errors()[0]
+    if first["type"] != "extra_forbidden":
+        return ""
+    keys = {k.key: k for k in config_keys(model)}
+    typed = _loc(first["loc"])
+    near = difflib.get_close_matches(typed, list(keys), n=1)
+    guess = f"; did you mean {near[0]} ({keys[near[0]].description})?" if near else ""
+    return f"{guess} (`tactile_bench list stages` shows every key of {kind})"
 
 
 def apply_overrides(doc: dict[str, Any], overrides: list[str], path: Path) -> dict[str, Any]:
@@ -163,7 +178,8 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
         try:
             config = kind.config_model(**stage_doc.config)
         except ValidationError as exc:
-            raise TactileBenchError(f"{where}.config.{_first_error(exc, '')}") from None
+            hint = _unknown_key_hint(exc, kind.name, kind.config_model)
+            raise TactileBenchError(f"{where}.config.{_first_error(exc, '')}{hint}") from None
         inputs = {
             slot: [refs] if isinstance(refs, str) else list(refs)
             for slot, refs in stage_doc.inputs.items()
