@@ -42,9 +42,7 @@ KNOWN_UPWARD: dict[tuple[str, str], str] = {
     # a constant of the memory estimate; it belongs in guard.limits (diagnose/ is another
     # engineer's while issue 23's and the diagnosis work are open)
     ("diagnose.paired", "guard.args"): "BYTES_PER_PAIR_PIXEL",
-    # benchmarks and a measurement that read data: to move to bench/ and the ground command
-    ("sensor.throughput", "data.braille"): "benchmark in the sensor layer",
-    ("sensor.throughput", "data.ycb_slide"): "benchmark in the sensor layer",
+    # a measurement that reads a real frame with the data layer's checked image reader
     ("sensor.grounding", "data.images"): "reads a real frame with the data layer's reader",
 }
 

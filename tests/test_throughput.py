@@ -9,6 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from tactile_bench.bench.throughput import braille_throughput, format_report, object_throughput
 from tactile_bench.effects import EFFECTS, EffectContext
 from tactile_bench.effects.base import blur_matrices, gaussian_blur
 from tactile_bench.effects.camera import jpeg_approx
@@ -19,7 +20,6 @@ from tactile_bench.sensor.depth import GelSpec, _affine_grid, _sample_maps, area
 from tactile_bench.sensor.heightfield import build_bank, raycast_heights
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer, embree_available
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.throughput import braille_throughput, format_report, object_throughput
 from tactile_bench.sensor.timing import StageTimer, stage
 
 CHARS = ("A", "Y", "#")

@@ -1,5 +1,8 @@
 """End-to-end simulation throughput of the two dataset builders, stage by stage.
 
+A benchmark of the builders of the data layer, so it lives with the benchmarks (``bench``),
+above the layers it measures.
+
 ``braille_throughput(n)`` and ``object_throughput(n)`` build ``n`` braille contacts or ``n``
 pretraining-object frames exactly as the pipeline's ``braille_data`` and ``ycb_slide_data``
 stages do (same functions, same defaults: sim depth, sim image and surrogate-real image of
@@ -33,7 +36,15 @@ from typing import Any
 
 import torch
 
+from tactile_bench.data.braille import build_braille_sets
+from tactile_bench.data.ycb_slide import StandinConfig, build_ycb_slide_standin
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
+from tactile_bench.sensor.background import sim_background
+from tactile_bench.sensor.depth import GelSpec
+from tactile_bench.sensor.heightfield import build_bank
+from tactile_bench.sensor.optics import SimOptics
+from tactile_bench.sensor.surrogate import SurrogateDigit
 from tactile_bench.sensor.timing import StageTimer
 from tactile_bench.sensor.timing import stage as timed
 
@@ -81,14 +92,6 @@ def braille_throughput(n: int, seed: int = 0, real_sensor: str = "digit") -> dic
     ``n = 13446`` exactly the default stage); the height-field bank is ray-cast as the
     stage does (stage ``bank``) and the sets are saved to a temporary directory (``io``).
     """
-    from tactile_bench.data.braille import build_braille_sets
-    from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
-    from tactile_bench.sensor.background import sim_background
-    from tactile_bench.sensor.depth import GelSpec
-    from tactile_bench.sensor.heightfield import build_bank
-    from tactile_bench.sensor.optics import SimOptics
-    from tactile_bench.sensor.surrogate import SurrogateDigit
-
     if n < len(BRAILLE_DEFAULT_SETS):
         raise TactileBenchError(f"braille_throughput: n must be >= 4, got {n}")
     n_ft, n_te, n_cl, n_ct = _split(n, BRAILLE_DEFAULT_SETS)
@@ -156,10 +159,6 @@ def object_throughput(
     ``build_ycb_slide_standin`` (default: one process per torch thread); with several,
     the stage times are summed over the processes (so they add up to more than the wall).
     """
-    from tactile_bench.data.ycb_slide import StandinConfig, build_ycb_slide_standin
-    from tactile_bench.sensor.depth import GelSpec
-    from tactile_bench.sensor.surrogate import SurrogateDigit
-
     if n < 10:
         raise TactileBenchError(f"object_throughput: n must be >= 10, got {n}")
     load = os.getloadavg()
