@@ -51,3 +51,15 @@ def test_a_mistyped_key_is_answered_with_the_nearest_key_and_its_meaning(tmp_pat
     assert "config.classifier.lrr: Extra inputs are not permitted" in message
     assert "did you mean classifier.lr (Adam learning rate)?" in message
     assert "\n" not in message
+
+
+def test_every_translator_config_key_has_a_description() -> None:
+    from tactile_bench.translators.registry import discover
+
+    missing = [
+        f"{name}.{key}"
+        for name, entry in discover().items()
+        for key, field_info in entry.load().Config.model_fields.items()
+        if not field_info.description
+    ]
+    assert missing == []

@@ -46,10 +46,12 @@ class TranslatorConfig(BaseModel):
     """
 
     model_config = ConfigDict(extra="forbid")
-    seed: int = 0
-    batch_size: int = Field(default=32, ge=1)
-    max_steps: int = Field(default=200, ge=0)
-    precision: Precision = "auto"
+    seed: int = Field(default=0, description="seed of the fit's data order and random draws")
+    batch_size: int = Field(default=32, ge=1, description="pairs a training step")
+    max_steps: int = Field(default=200, ge=0, description="training steps of a fit; 0: none")
+    precision: Precision = Field(
+        default="auto", description="auto: bf16 where the CPU has bf16 arithmetic, else fp32"
+    )
 
 
 def _why_unreadable(exc: Exception) -> str:

@@ -25,18 +25,24 @@ Range = tuple[float, float]
 class LightingAugConfig(SimConfig):
     """Augmentation strengths (ranges, probabilities); moderate, photometric-only defaults."""
 
-    brightness: float = Field(default=0.2, ge=0, le=1)
-    contrast: float = Field(default=0.2, ge=0)
-    saturation: float = Field(default=0.2, ge=0)
-    hue: float = Field(default=0.03, ge=0, le=0.5)
-    gamma: Range = (0.8, 1.25)
-    planckian_p: float = Field(default=0.5, ge=0, le=1)
-    linear_illumination_gain: Range = (0.01, 0.15)
-    illumination_p: float = Field(default=0.5, ge=0, le=1)
-    noise_std: float = Field(default=0.02, ge=0)
-    noise_p: float = Field(default=0.5, ge=0, le=1)
-    blur_sigma: Range = (0.1, 1.0)
-    blur_p: float = Field(default=0.3, ge=0, le=1)
+    brightness: float = Field(default=0.2, ge=0, le=1, description="ColorJitter brightness")
+    contrast: float = Field(default=0.2, ge=0, description="ColorJitter contrast")
+    saturation: float = Field(default=0.2, ge=0, description="ColorJitter saturation")
+    hue: float = Field(default=0.03, ge=0, le=0.5, description="ColorJitter hue")
+    gamma: Range = Field(default=(0.8, 1.25), description="range of the random gamma")
+    planckian_p: float = Field(
+        default=0.5, ge=0, le=1, description="probability of a black-body colour temperature"
+    )
+    linear_illumination_gain: Range = Field(
+        default=(0.01, 0.15), description="gain range of the linear and corner light gradients"
+    )
+    illumination_p: float = Field(
+        default=0.5, ge=0, le=1, description="probability of each light gradient"
+    )
+    noise_std: float = Field(default=0.02, ge=0, description="std of the Gaussian pixel noise")
+    noise_p: float = Field(default=0.5, ge=0, le=1, description="probability of that noise")
+    blur_sigma: Range = Field(default=(0.1, 1.0), description="sigma range of the Gaussian blur")
+    blur_p: float = Field(default=0.3, ge=0, le=1, description="probability of that blur")
 
 
 def build_augmentation(cfg: LightingAugConfig) -> K.AugmentationSequential:

@@ -8,6 +8,7 @@ composited onto whichever background the caller gives.
 from __future__ import annotations
 
 import torch
+from pydantic import Field
 
 from tactile_bench.sensor.background import sim_background
 from tactile_bench.sensor.optics import SimOptics
@@ -17,7 +18,7 @@ from tactile_bench.translators.base import Translator, TranslatorConfig, image_t
 class SimConfig(TranslatorConfig):
     """Nothing to fit: only the seed of the sensor noise (``max_steps`` is ignored)."""
 
-    max_steps: int = 0
+    max_steps: int = Field(default=0, description="ignored: the simulator has nothing to fit")
 
 
 class SimTranslator(Translator):

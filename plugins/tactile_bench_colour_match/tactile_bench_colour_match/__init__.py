@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import torch
+from pydantic import Field
 from torch import nn
 
 from tactile_bench.translators import Translator, TranslatorConfig
@@ -12,8 +13,8 @@ from tactile_bench.translators.sim import SimTranslator
 class ColourMatchConfig(TranslatorConfig):
     """Adam learning rate and the usual fit settings."""
 
-    lr: float = 0.01
-    max_steps: int = 100
+    lr: float = Field(default=0.01, gt=0, description="Adam learning rate of the colour transform")
+    max_steps: int = Field(default=100, ge=0, description="training steps of a fit")
 
 
 class ColourMatchTranslator(Translator):

@@ -32,18 +32,36 @@ class CGANConfig(TranslatorConfig):
     ``divergence_window`` / ``divergence_factor``: see :class:`DivergenceMonitor`.
     """
 
-    max_steps: int = Field(default=1000, ge=0)
-    lr: float = Field(default=2e-4, gt=0)
-    beta1: float = Field(default=0.5, ge=0, lt=1)
-    l1_weight: float = Field(default=100.0, ge=0)
-    generator_channels: int = Field(default=16, ge=1)
-    num_downs: int = Field(default=4, ge=2)
-    discriminator_channels: int = Field(default=16, ge=1)
-    discriminator_layers: int = Field(default=3, ge=1)
-    dropout: float = Field(default=0.5, ge=0, lt=1)
-    depth_scale_mm: float = Field(default=1.0, gt=0)
-    divergence_window: int = Field(default=50, ge=2)
-    divergence_factor: float = Field(default=3.0, gt=1)
+    max_steps: int = Field(default=1000, ge=0, description="generator updates")
+    lr: float = Field(default=2e-4, gt=0, description="Adam learning rate of both networks")
+    beta1: float = Field(default=0.5, ge=0, lt=1, description="Adam beta1 (pix2pix: 0.5)")
+    l1_weight: float = Field(
+        default=100.0, ge=0, description="weight of the L1 term against the adversarial one"
+    )
+    generator_channels: int = Field(
+        default=16, ge=1, description="channels of the U-Net generator's first layer"
+    )
+    num_downs: int = Field(
+        default=4, ge=2, description="halvings of the U-Net (the image side must divide by 2**n)"
+    )
+    discriminator_channels: int = Field(
+        default=16, ge=1, description="channels of the PatchGAN discriminator's first layer"
+    )
+    discriminator_layers: int = Field(
+        default=3, ge=1, description="strided layers of the PatchGAN discriminator"
+    )
+    dropout: float = Field(
+        default=0.5, ge=0, lt=1, description="dropout of the innermost decoder layers"
+    )
+    depth_scale_mm: float = Field(
+        default=1.0, gt=0, description="the generator sees depth in mm divided by this"
+    )
+    divergence_window: int = Field(
+        default=50, ge=2, description="steps of the loss averages the divergence check watches"
+    )
+    divergence_factor: float = Field(
+        default=3.0, gt=1, description="L1 average this many times its best so far: divergence"
+    )
 
 
 class CGANTranslator(Translator):

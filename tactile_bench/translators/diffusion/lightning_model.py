@@ -67,23 +67,37 @@ class DiffusionConfig(TranslatorConfig):
     ``precision``, still loads: true (its old default) as ``auto``, false as ``32-true``.
     """
 
-    max_steps: int = Field(default=1000, ge=0)
-    lr: float = Field(default=1e-4, gt=0)
-    preset: Literal[tuple(PRESETS)] = "cpu-small"  # type: ignore[valid-type]
-    image_size: int = Field(default=64, ge=8)
-    train_timesteps: int = Field(default=500, ge=2)
-    beta_start: float = 1e-4
-    beta_end: float = 0.02
-    prediction: Literal[tuple(TARGETS)] = "sample"  # type: ignore[valid-type]
-    sampler: Literal[tuple(SAMPLERS)] = "dpmsolver++"  # type: ignore[valid-type]
-    steps: int = Field(default=4, ge=1)
-    sample_batch_size: int = Field(default=32, ge=1)
-    depth_scale_mm: float = Field(default=1.0, gt=0)
-    foreground_scale: float = Field(default=4.0, gt=0)
-    ema: bool = False
-    ema_decay: float = Field(default=0.999, ge=0.0, lt=1.0)
-    channels_last: bool = True
-    observation_noise: bool = True
+    max_steps: int = Field(default=1000, ge=0, description="training steps")
+    lr: float = Field(default=1e-4, gt=0, description="Adam learning rate")
+    preset: Literal[tuple(PRESETS)] = Field(  # type: ignore[valid-type]
+        default="cpu-small", description="U-Net size (torch_model.PRESETS)"
+    )
+    image_size: int = Field(default=64, ge=8, description="image side in pixels")
+    train_timesteps: int = Field(
+        default=500, ge=2, description="noise levels of the training schedule (the paper: 500)"
+    )
+    beta_start: float = Field(default=1e-4, description="noise variance at the first timestep")
+    beta_end: float = Field(default=0.02, description="noise variance at the last timestep")
+    prediction: Literal[tuple(TARGETS)] = Field(  # type: ignore[valid-type]
+        default="sample", description="what the network predicts: sample (x0) or epsilon"
+    )
+    sampler: Literal[tuple(SAMPLERS)] = Field(  # type: ignore[valid-type]
+        default="dpmsolver++", description="sampling scheduler (the paper: ddpm)"
+    )
+    steps: int = Field(default=4, ge=1, description="sampling steps (the paper: 500)")
+    sample_batch_size: int = Field(default=32, ge=1, description="images sampled at a time")
+    depth_scale_mm: float = Field(
+        default=1.0, gt=0, description="the condition is depth in mm divided by this"
+    )
+    foreground_scale: float = Field(
+        default=4.0, gt=0, description="sample = (foreground - 0.5) times this"
+    )
+    ema: bool = Field(default=False, description="sample with an EMA of the weights")
+    ema_decay: float = Field(default=0.999, ge=0.0, lt=1.0, description="decay of that EMA")
+    channels_last: bool = Field(default=True, description="channels_last memory layout")
+    observation_noise: bool = Field(
+        default=True, description="add the camera noise measured on the training images"
+    )
 
     @model_validator(mode="before")
     @classmethod
