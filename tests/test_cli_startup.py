@@ -63,3 +63,18 @@ def test_validate_diagnosis_suites_match_the_module() -> None:
     from tactile_bench.diagnose.validate import SUITES
 
     assert (*SUITES, "both") == VALIDATION_SUITES
+
+
+def test_the_bench_times_every_help_in_a_fresh_process() -> None:
+    from tactile_bench.bench.report import _startup
+    from tactile_bench.bench.startup import help_commands, startup_times
+
+    commands = help_commands()
+    assert ("--help",) in commands and ("data", "ycb-slide", "--help") in commands
+    assert len(commands) == len(_command_paths())
+    result = startup_times(repeats=1, commands=[("--help",), ("list", "--help")])
+    assert [row["command"] for row in result["rows"]] == ["--help", "list --help"]
+    assert all(row["median_s"] > 0 for row in result["rows"])
+    assert result["slowest_help_s"] == max(row["median_s"] for row in result["rows"])
+    table = "\n".join(_startup({"startup": result}))
+    assert "| `list --help` |" in table and "Every `--help` under 1 s" in table

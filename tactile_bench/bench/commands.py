@@ -43,7 +43,8 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "bench",
         help="measure simulation, diffusion sampling and training on this machine",
-        description="Write bench.json and bench.md: simulation contacts/s, a sampler speed/"
+        description="Write bench.json and bench.md: --help of every command in a fresh "
+        "process, simulation contacts/s, a sampler speed/"
         "quality table against the paper's DDPM-500, training throughput (fp32 / bf16 / "
         "channels_last), cost at 1x/2x/4x work, peak memory. Use the global --threads to "
         "pin torch threads (default: torch's choice).",
@@ -66,8 +67,8 @@ def register(subparsers: Any) -> None:
         "--only",
         nargs="*",
         metavar="SECTION",
-        help="simulation, sampling, threads, training, scaling (default: all; the "
-        "simulation's 1x/2x/4x rows come with simulation)",
+        help="startup, simulation, sampling, threads, training, scaling (default: all; "
+        "the simulation's 1x/2x/4x rows come with simulation)",
     )
     p.add_argument("--repeats", type=int, help="timed repetitions per figure")
     p.add_argument("--ddpm-images", type=int, help="test contacts sampled by DDPM-500")

@@ -416,9 +416,26 @@ def _scaling(r: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _startup(r: dict[str, Any]) -> list[str]:
+    st = r["startup"]
+    verdict = "met" if st["met"] else "NOT met"
+    lines = [
+        "## Command-line start-up",
+        "",
+        f"Each command in a fresh interpreter, median of {len(st['rows'][0]['runs_s'])} "
+        f"runs. Every `--help` under {st['target_help_s']:g} s: {verdict} (slowest "
+        f"{_f(st['slowest_help_s'], 2)} s). `list effects` loads torch, for scale.",
+        "",
+    ]
+    rows = [[f"`{row['command']}`", _f(row["median_s"], 2)] for row in st["rows"]]
+    return lines + _table(["command", "wall s"], rows)
+
+
 def render_markdown(r: dict[str, Any]) -> str:
     """The whole bench.md for a result dict of ``run_bench``."""
     lines = _machine(r)
+    if "startup" in r:
+        lines += _startup(r)
     if "sampling" in r:
         lines += _sampling(r)
     if "threads" in r:

@@ -27,7 +27,7 @@ from typing import Any
 import torch
 
 from tactile_bench import allocator
-from tactile_bench.bench import sampling, simulation, training
+from tactile_bench.bench import sampling, simulation, startup, training
 from tactile_bench.bench.report import render_markdown
 from tactile_bench.bench.threads import thread_settings
 from tactile_bench.bench.timing import torch_threads
@@ -42,7 +42,7 @@ from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
 from tactile_bench.translators.diffusion import DiffusionConfig, DiffusionTranslator
 
-SECTIONS = ("simulation", "sampling", "threads", "training", "scaling")
+SECTIONS = ("startup", "simulation", "sampling", "threads", "training", "scaling")
 # inference settings the bench applies to a loaded checkpoint: the shipped defaults
 INFERENCE_KEYS = ("sampler", "steps", "sample_batch_size", "precision", "channels_last")
 # what the default sampler must reach (issue 8): vs DDPM-500 measured in the same run
@@ -273,6 +273,10 @@ def run_bench(
         result["machine"]["conv_probe"] = step(
             "precision: conv fp32 vs bf16", lambda: conv_probe(cfg.conv_batch, cfg.repeats)
         )
+        if "startup" in sections:
+            result["startup"] = step(
+                "start-up: --help of every command", lambda: startup.startup_times(cfg.repeats)
+            )
         if "simulation" in sections:
             braille_sim = step(
                 "simulation: braille", lambda: simulation.braille(cfg.sim_contacts, cfg.repeats)
