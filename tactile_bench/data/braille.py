@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from tactile_bench.data.images import to_uint8
+from tactile_bench.data.pixels import image_to_foreground, to_uint8
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.geometry.contacts import (
@@ -92,7 +92,7 @@ class BrailleSet:
                 f"BrailleSet.foreground: kind must be 'sim' or 'real', not {kind!r}"
             )
         image, background = getattr(self, kind), getattr(self, f"{kind}_background")
-        return (image.float() - background.float()) / 255.0 + 0.5
+        return image_to_foreground(image.float(), background.float())
 
     def subset(self, idx: torch.Tensor | slice | Sequence[int]) -> BrailleSet:
         """The contacts at ``idx`` (indices, mask or slice); backgrounds are shared."""

@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from tactile_bench.data.braille import BrailleSet
-from tactile_bench.data.images import to_uint8
 from tactile_bench.data.pairs import PairSet
+from tactile_bench.data.pixels import to_uint8
 from tactile_bench.data.tactile_diffusion import (
     SIM_BACKGROUND_ID,
     Split,

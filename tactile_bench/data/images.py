@@ -23,13 +23,6 @@ from tactile_bench.guard.images import open_header
 RGB_MODES = ("RGB", "P")
 
 
-def to_uint8(image: torch.Tensor) -> torch.Tensor:
-    """Pixel values as stored: rounded, clamped to 0..255, uint8 (uint8 input unchanged)."""
-    if image.dtype == torch.uint8:
-        return image
-    return image.float().clamp(0, 255).round_().to(torch.uint8)  # = round, then clamp
-
-
 def is_hidden(path: Path) -> bool:
     """``.DS_Store``, ``._frame.png``, ``.ipynb_checkpoints``: never data."""
     return path.name.startswith(".")

@@ -22,19 +22,12 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from tactile_bench.data.pixels import image_to_foreground, to_uint8
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_npz, file_sha256, load_npz
 
 FORMAT = 1
 SPLITS = ("train", "test", "all")
-
-
-def to_uint8(image: torch.Tensor | np.ndarray) -> torch.Tensor:
-    """Round and clamp a 0..255 image to uint8."""
-    image = torch.as_tensor(image)
-    if image.dtype == torch.uint8:
-        return image
-    return image.float().round().clamp(0, 255).to(torch.uint8)
 
 
 @dataclass
@@ -110,7 +103,7 @@ class PairSet:
         image = self.real if kind == "real" else self.sim
         if image is None:
             raise TactileBenchError("PairSet: no sim images in this set")
-        return (image.float() - self.background(kind).float()) / 255.0 + 0.5
+        return image_to_foreground(image.float(), self.background(kind).float())
 
     def subset(self, idx: torch.Tensor | slice | Sequence[int]) -> PairSet:
         """The pairs at ``idx`` (indices, mask or slice); backgrounds are shared."""

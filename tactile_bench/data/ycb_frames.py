@@ -21,7 +21,7 @@ from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.timing import stage as timed
 
-from .pairs import to_uint8
+from .pixels import to_uint8
 
 DEFAULT_PAIRS = 8000  # CPU budget; the paper's corpus is 180_000 ("paper" preset)
 PAPER_PAIRS = 180_000

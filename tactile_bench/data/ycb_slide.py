@@ -47,7 +47,8 @@ from tactile_bench.sensor.surrogate import SurrogateDigit
 from tactile_bench.sensor.timing import stage as timed
 
 from .images import SameSize, read_image
-from .pairs import FORMAT, PairSet, read_manifest, to_uint8, write_backgrounds
+from .pairs import FORMAT, PairSet, read_manifest, write_backgrounds
+from .pixels import to_uint8
 from .ycb_frames import (
     DEFAULT_PAIRS,
     PAPER_PAIRS,

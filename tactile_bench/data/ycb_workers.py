@@ -32,7 +32,8 @@ from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.timing import StageTimer, active_timer
 from tactile_bench.sensor.timing import stage as timed
 
-from .pairs import PairSet, to_uint8
+from .pairs import PairSet
+from .pixels import to_uint8
 from .ycb_frames import (
     TRAJECTORY_CHUNK,
     StandinConfig,

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from tactile_bench.data.images import to_uint8
+from tactile_bench.data.pixels import image_to_foreground, to_uint8
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.geometry.contacts import Poses
@@ -204,7 +204,7 @@ class StripFrames:
 
     def foreground(self) -> torch.Tensor:
         """(image - background) / 255 + 0.5: what the classifiers take."""
-        return (self.images.float() - self.background.float()) / 255.0 + 0.5
+        return image_to_foreground(self.images.float(), self.background.float())
 
 
 def render_frames(

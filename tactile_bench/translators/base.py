@@ -21,6 +21,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from torch.utils.data import DataLoader, TensorDataset
 
 import tactile_bench
+
+# the pixel conventions live in the data layer; re-exported here for translators and plugins
+from tactile_bench.data.pixels import foreground_to_image as foreground_to_image
+from tactile_bench.data.pixels import image_to_foreground as image_to_foreground
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.files import require_not_special
 from tactile_bench.hardware import Precision, trainer_precision
@@ -63,16 +67,6 @@ def _why_unreadable(exc: Exception) -> str:
         return "its content is not a tensors-and-plain-values checkpoint"
     first = text.strip().splitlines()[0][:100] if text.strip() else type(exc).__name__
     return f"corrupt or truncated? {first}"
-
-
-def foreground_to_image(foreground: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
-    """Add a background back to a foreground: the inverse of the paper's background removal."""
-    return ((foreground - 0.5) * 255.0 + background).clamp(0.0, 255.0)
-
-
-def image_to_foreground(image: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
-    """Remove the no-contact frame so models see only what the contact changed."""
-    return (image - background) / 255.0 + 0.5
 
 
 class Translator(L.LightningModule):
