@@ -57,7 +57,7 @@ def _tactile_diffusion(path: Path, skipped: Skipped | None, seed: int = 0) -> st
 
 def _ycb_slide(path: Path, skipped: Skipped | None) -> str:
     from tactile_bench.data.ycb_processed import released_background
-    from tactile_bench.data.ycb_slide import load_ycb_slide_real
+    from tactile_bench.data.ycb_real import load_ycb_slide_real
 
     pairs = load_ycb_slide_real(path, skipped=skipped)
     logs = len(set(pairs.meta["trajectory"].tolist()))

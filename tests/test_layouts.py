@@ -10,7 +10,7 @@ import torch
 from data.make_layouts import make_braille_layout, make_ycb_slide_real
 
 from tactile_bench.data.tactile_diffusion import load_braille_pairs, load_braille_real_images
-from tactile_bench.data.ycb_slide import jump_mask, load_ycb_slide_real
+from tactile_bench.data.ycb_real import jump_mask, load_ycb_slide_real
 from tactile_bench.errors import TactileBenchError
 
 OBJ = "004_sugar_box"

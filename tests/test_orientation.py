@@ -20,7 +20,7 @@ import torch
 from data.original_layouts import tacto_camera_axes, write_braille_release, write_ycb_slide_wedge
 
 from tactile_bench.data.tactile_diffusion import load_braille_pairs
-from tactile_bench.data.ycb_slide import load_ycb_slide_real
+from tactile_bench.data.ycb_real import load_ycb_slide_real
 from tactile_bench.sensor.depth import GelSpec
 
 

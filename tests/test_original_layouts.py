@@ -241,7 +241,7 @@ def test_processed_ycb_copy_is_a_corpus_source(
 def test_ycb_slide_release_backgrounds_are_used_when_present(tmp_path: Path) -> None:
     from data.make_layouts import make_ycb_slide_real
 
-    from tactile_bench.data.ycb_slide import load_ycb_slide_real
+    from tactile_bench.data.ycb_real import load_ycb_slide_real
 
     make_ycb_slide_real(tmp_path, "004_sugar_box", n_frames=3, datasets=1)
     first = load_ycb_slide_real(tmp_path, snap_to_surface=False)  # no bgs/: first frame

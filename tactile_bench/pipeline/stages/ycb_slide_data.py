@@ -22,11 +22,11 @@ from tactile_bench.data.ycb_processed import (
     processed_root,
     released_background,
 )
+from tactile_bench.data.ycb_real import load_ycb_slide_real
 from tactile_bench.data.ycb_slide import (
     DEFAULT_PAIRS,
     StandinConfig,
     build_ycb_slide_standin,
-    load_ycb_slide_real,
     write_corpus,
 )
 from tactile_bench.errors import TactileBenchError
