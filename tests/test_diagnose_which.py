@@ -361,3 +361,14 @@ def test_of_effects_the_data_cannot_tell_apart_the_simplest_is_ranked_first(bank
     options["led_diffusivity"] = ({"gain_r": 0.5, "gain_g": 1.5}, lookup_gap + 0.1)
     row = _pick(options, {}, before, 0.2, base, 0)
     assert row.effect == "optical_response" and row.confusable_with == []
+
+
+def test_a_shrink_interval_always_holds_its_estimate() -> None:
+    """No gap to begin with (a sim equal to the real): the estimate is 0, while every
+    resample divides by ~0 and the percentile interval alone lies near -1e11."""
+    from tactile_bench.diagnose.which import _row, shrink_ci
+
+    before, after = torch.zeros(60), torch.full((60,), 0.1)
+    assert shrink_ci(before, after)[1] < -1e6  # the raw interval misses the estimate
+    row = _row("vignetting", {}, before, after, 0)
+    assert row.shrink == 0.0 and row.ci_low <= row.shrink <= row.ci_high

@@ -127,8 +127,11 @@ def _row(
     name: str, params: dict[str, float], before: torch.Tensor, after: torch.Tensor, seed: int
 ) -> EffectFit:
     b, a = float(before.mean()), float(after.mean())
+    shrink = (b - a) / b if b > 0 else 0.0
     lo, hi = shrink_ci(before, after, seed)
-    return EffectFit(name, params, b, a, (b - a) / b if b > 0 else 0.0, lo, hi)
+    # a percentile interval of a skewed ratio can miss its own estimate (degenerate data):
+    # the reported interval always holds it
+    return EffectFit(name, params, b, a, shrink, min(lo, shrink), max(hi, shrink))
 
 
 #: what tells two effects of these stages apart, when the pairs at hand cannot
