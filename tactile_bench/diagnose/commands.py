@@ -252,9 +252,9 @@ def _export_real_presses(ns: argparse.Namespace) -> int:
 
 def _cmd_validate(ns: argparse.Namespace) -> int:
     # imported here, not at the top: diagnose.validate loads torch and the whole renderer
-    from tactile_bench.diagnose.validate import _cmd
+    from tactile_bench.diagnose.validate import run_command
 
-    return _cmd(ns)
+    return run_command(ns)
 
 
 # ------------------------------------------------------------------------------ parsers

@@ -284,7 +284,8 @@ def validate_diagnosis(
     return {"summary": summary, "cases": rows}
 
 
-def _cmd(ns: argparse.Namespace) -> int:
+def run_command(ns: argparse.Namespace) -> int:
+    """``validate-diagnosis``: run the suites and print each one's summary line."""
     suites = SUITES if ns.suite == "both" else (ns.suite,)
     report = validate_diagnosis(
         Path(ns.out),
@@ -307,27 +308,3 @@ def _cmd(ns: argparse.Namespace) -> int:
     print(f"{report['summary']['seconds']:.0f} s")
     print(f"wrote {Path(ns.out) / 'validation.json'} and validation.md")
     return 0
-
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``validate-diagnosis`` to the CLI."""
-    p = subparsers.add_parser(
-        "validate-diagnosis",
-        help="plant withheld effects in surrogate-real data and check the gap diagnosis",
-        description=__doc__.split("\n\n")[1] if __doc__ else None,
-    )
-    p.add_argument("--out", default="runs/validate_diagnosis", help="output directory")
-    p.add_argument("--quick", action="store_true", help="a few cases, fewer pairs (minutes)")
-    p.add_argument(
-        "--pairs", type=int, default=None, help="pairs per case (default 200, quick 120)"
-    )
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--size", type=int, default=64, help="image size")
-    p.add_argument(
-        "--suite",
-        choices=(*SUITES, "both"),
-        default="both",
-        help="own: the project's renderer; foreign: an independent renderer (default both)",
-    )
-    p.add_argument("--no-progress", action="store_true")
-    p.set_defaults(func=_cmd)
