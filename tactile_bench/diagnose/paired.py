@@ -37,6 +37,7 @@ import numpy as np
 import torch
 from PIL import Image, UnidentifiedImageError
 
+from tactile_bench.data.tactile_diffusion import braille_root
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL
 from tactile_bench.guard.images import MIN_SIDE, open_header
@@ -237,9 +238,10 @@ def detect_layout(root: str | os.PathLike) -> tuple[str, Path]:
         raise TactileBenchError(f"{root}: folder not found")
     if (root / "depth").is_dir():
         return "paired", root
-    for base in (root, root / "braille"):
-        if (base / "real_fine_tuning").is_dir():
-            return "tactile_diffusion", base
+    try:  # the braille folder or its parent: the one rule of check and every stage
+        return "tactile_diffusion", braille_root(root)
+    except TactileBenchError:
+        pass
     if (root / "sim").is_dir() or (root / "real").is_dir():
         return "paired", root  # the listing then names the missing depth/ folder
     raise TactileBenchError(
