@@ -353,13 +353,13 @@ def test_of_effects_the_data_cannot_tell_apart_the_simplest_is_ranked_first(bank
         "vignetting": ({"corner_loss": 0.0}, lookup_gap + 0.5),
     }
     assert CANDIDATES["optical_response"].fitted_numbers(base) > 100
-    row = _pick(options, {}, before, 0.2, base, 0)
+    row = _pick(options, {}, before, 0.2, base, 0.1, 0)
     assert row.effect == "led_diffusivity"
     assert row.confusable_with == ["optical_response", "vignetting"]
     del options["vignetting"]
     # a rival that changes the images (and is worse on every pair) is not confusable
     options["led_diffusivity"] = ({"gain_r": 0.5, "gain_g": 1.5}, lookup_gap + 0.1)
-    row = _pick(options, {}, before, 0.2, base, 0)
+    row = _pick(options, {}, before, 0.2, base, 0.1, 0)
     assert row.effect == "optical_response" and row.confusable_with == []
 
 

@@ -112,6 +112,15 @@ def pair_gap(draws: list[torch.Tensor], target: Target) -> torch.Tensor:
     return structure + texture
 
 
+def rounding_gap(target: Target, seed: int = 0) -> float:
+    """The gap 8-bit rounding alone makes: the real images against themselves plus uniform
+    noise of one grey level's width (what storing a frame in 8 bits can change). Fits that
+    differ by less explain the same thing as far as 8-bit frames can show."""
+    gen = torch.Generator().manual_seed(seed)
+    noise = torch.rand(target.real.shape, generator=gen) - 0.5
+    return float(pair_gap([target.real.float() + noise], target).mean())
+
+
 def _random(effects: Mapping[str, Mapping[str, object]]) -> bool:
     """True when an effect draws randomness or has a per-pair latent (cannot be baked)."""
     return any(CANDIDATES[n].stochastic or CANDIDATES[n].latent_grid for n in effects)

@@ -40,6 +40,7 @@ from tactile_bench.diagnose.gapfit import (
     fit_jointly,
     is_stochastic,
     model_gap,
+    rounding_gap,
 )
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.errors import TactileBenchError
@@ -243,10 +244,11 @@ def explain_gap(
     selected: dict[str, dict[str, float]] = {}
     ranking: list[EffectFit] = []
     current, options = gap0, fits
+    rounding = rounding_gap(target_held, seed)
     for _ in range(MAX_ROUNDS):
         if not options:
             break
-        row = _pick(options, selected, current, threshold, base_held, seed)
+        row = _pick(options, selected, current, threshold, base_held, rounding, seed)
         if row is None:
             break
         ranking.append(row)
@@ -302,11 +304,12 @@ def _pick(
     current: torch.Tensor,
     threshold: float,
     base: Base,
+    rounding: float,
     seed: int,
 ) -> EffectFit | None:
     """This round's effect: the one leaving least of the held-out gap, unless rivals the
-    data cannot tell from it (``_confusable``) that leave at most rounding's worth of gap
-    more (``PIXEL_NOISE`` squared) hold one with fewer fitted numbers; then the simplest of
+    data cannot tell from it (``_confusable``) that leave at most ``rounding`` more gap (what
+    8-bit rounding alone makes) hold one with fewer fitted numbers; then the simplest of
     them (the data do not ask for the extra freedom: Hastie, Tibshirani & Friedman, *The
     Elements of Statistical Learning*, sec. 7.10, the one-standard-error rule). None when
     no effect passes the selection rule."""
@@ -334,7 +337,7 @@ def _pick(
         return None
     # a rival that leaves more than rounding's worth of gap over the best is a different
     # explanation, however close its images: only the others compete on simplicity
-    within = float(options[best][1].mean()) + PIXEL_NOISE**2
+    within = float(options[best][1].mean()) + rounding
     cost = {
         n: get_candidate(n).fitted_numbers(base)
         for n in [best, *row.confusable_with]
