@@ -278,7 +278,10 @@ def _grid(u: dict[str, object], names: list[str], loss_fn: Any) -> None:
     parameters, such as a gel's spread and the core it holds, have no good value of one at
     the other's start: a sweep one coordinate at a time stalls there)."""
     best = (loss_fn(u), {n: u[n] for n in names})
-    for levels in itertools.product(SWEEP_LEVELS, repeat=len(names)):
+    # each parameter's start is a level too: the grid holds every point a sweep from the
+    # start could end on, so it never does worse than the sweep it replaces
+    axes = [sorted({*SWEEP_LEVELS, float(u[n])}) for n in names]
+    for levels in itertools.product(*axes):
         trial = dict(zip(names, levels, strict=True))
         value = loss_fn({**u, **trial})
         if value < best[0] - 1e-9:
