@@ -380,3 +380,14 @@ def test_the_grid_holds_every_point_a_sweep_from_the_start_could_reach() -> None
     u = {"a": 0.4, "b": 0.6}  # neither start is one of SWEEP_LEVELS
     gapfit._grid(u, ["a", "b"], lambda v: (float(v["a"]) - 0.4) ** 2 + (float(v["b"]) - 0.98) ** 2)
     assert u == {"a": 0.4, "b": 0.98}
+
+
+def test_a_tone_curve_keeps_the_noise_drawn_before_it(bank) -> None:
+    """Noise comes before the tone curve in the catalogue: the curve acts on the composite
+    with its noise, not on the noise-free change."""
+    base = make_base(_pairs(bank, {}, n=4))
+    tone = {"gamma_white_balance": {"gamma": 1.5}}
+    noisy = {**tone, "camera_noise": {"read_noise": 8.0}}
+    gen = torch.Generator().manual_seed(0)
+    spread = (render(base, noisy, gen) - render(base, tone)).std()
+    assert float(spread) > 2.0

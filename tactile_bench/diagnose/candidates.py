@@ -788,7 +788,8 @@ def render(
     for n in [n for n in names if CANDIDATES[n].stage == "camera"]:
         cand, p = CANDIDATES[n], effects[n]
         if cand.tone_curve:  # at the real light's level: the measured frame undone
-            image = cand.apply(cand.undo(measured, p) + (contact - flat), p, generator, ctx, base)
+            light = cand.undo(measured, p) + (image - measured)  # the change, noise and all
+            image = cand.apply(light, p, generator, ctx, base)
             flat = cand.apply(flat, p, None, ctx, base)
         elif cand.codec:  # around the sim's own (uncompressed) frame: the change it codes
             coded = cand.apply(flat + (image - measured), p, generator, ctx, base)
