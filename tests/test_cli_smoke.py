@@ -69,13 +69,14 @@ def test_ground_against_real_measurements(capsys: pytest.CaptureFixture[str]) ->
     assert main(["ground", "--real-dir", "/nonexistent"]) == 2
 
 
-def test_a_reader_that_leaves_early_is_not_an_error() -> None:
-    """``list effects | head -1``: the pipe closes before the listing is written."""
+@pytest.mark.parametrize("argv", [["list", "effects"], ["--help"], ["diagnose", "--help"]])
+def test_a_reader_that_leaves_early_is_not_an_error(argv: list[str]) -> None:
+    """``list effects | head -1``: the pipe closes before the listing (or page) is written."""
     import subprocess
     import sys
 
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tactile_bench", "list", "effects"],
+        [sys.executable, "-m", "tactile_bench", *argv],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )
