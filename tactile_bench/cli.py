@@ -282,6 +282,17 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USER_ERROR, f"error: {self.prog}: {message} (see {self.prog} --help)\n")
 
 
+def command_paths(parser: argparse.ArgumentParser) -> list[list[str]]:
+    """Every command and nested subcommand of ``parser``, as argument lists
+    (``[]``, ``["list"]``, ``["data", "ycb-slide"]``): what ``--help`` can be asked of."""
+    found: list[list[str]] = [[]]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                found += [[name, *rest] for rest in command_paths(sub)]
+    return found
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser, with a subcommand per job (subparsers share its class)."""
     parser = _Parser(

@@ -7,7 +7,7 @@ import json
 import subprocess
 import sys
 
-from tactile_bench.cli import build_parser
+from tactile_bench.cli import build_parser, command_paths
 
 #: packages whose import costs seconds; none may load to print a help text
 HEAVY = ("torch", "lightning", "torchmetrics", "diffusers", "kornia", "trimesh", "scipy")
@@ -25,23 +25,8 @@ print(json.dumps({"codes": codes, "heavy": heavy}))
 """
 
 
-def _command_paths() -> list[list[str]]:
-    """Every command and nested subcommand, as argument lists (``["data", "ycb-slide"]``)."""
-    import argparse
-
-    def walk(parser: argparse.ArgumentParser, prefix: list[str]) -> list[list[str]]:
-        found = [prefix]
-        for action in parser._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                for name, sub in action.choices.items():
-                    found += walk(sub, [*prefix, name])
-        return found
-
-    return walk(build_parser(), [])
-
-
 def test_help_of_every_command_imports_neither_torch_nor_lightning() -> None:
-    commands = _command_paths()
+    commands = command_paths(build_parser())
     assert len(commands) > 10  # the walk found the subcommands
     done = subprocess.run(
         [sys.executable, "-c", _PROBE, json.dumps(commands), json.dumps(HEAVY)],
@@ -71,7 +56,7 @@ def test_the_bench_times_every_help_in_a_fresh_process() -> None:
 
     commands = help_commands()
     assert ("--help",) in commands and ("data", "ycb-slide", "--help") in commands
-    assert len(commands) == len(_command_paths())
+    assert len(commands) == len(command_paths(build_parser()))
     result = startup_times(repeats=1, commands=[("--help",), ("list", "--help")])
     assert [row["command"] for row in result["rows"]] == ["--help", "list --help"]
     assert all(row["median_s"] > 0 for row in result["rows"])

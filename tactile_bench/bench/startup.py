@@ -24,20 +24,10 @@ EXTRA: tuple[tuple[str, ...], ...] = (("list", "effects"),)
 
 #: run in a fresh interpreter: every command path of the parser, as JSON. The bench sits
 #: below ``cli`` in the layers, so it asks the command line itself rather than import it
-_LIST_COMMANDS = """
-import argparse, json
-from tactile_bench.cli import build_parser
-
-def walk(parser, prefix):
-    found = [prefix]
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for name, sub in action.choices.items():
-                found += walk(sub, [*prefix, name])
-    return found
-
-print(json.dumps(walk(build_parser(), [])))
-"""
+_LIST_COMMANDS = (
+    "import json; from tactile_bench.cli import build_parser, command_paths; "
+    "print(json.dumps(command_paths(build_parser())))"
+)
 
 
 def help_commands() -> list[tuple[str, ...]]:
