@@ -175,15 +175,17 @@ def _confusable(
     """``row`` with the rivals its held-out pairs cannot tell from it (see EffectFit): the
     paired CI of their difference reaches 0, or (``image_of``: each one's fitted held-out
     images, None when drawn at random) their images differ by less than 8-bit rounding."""
+
+    def same_images(name: str) -> bool:  # rendered only when the interval cannot decide
+        mine = image_of(row.effect) if image_of else None
+        theirs = image_of(name) if image_of and mine is not None else None
+        return theirs is not None and float((theirs - mine).square().mean().sqrt()) < PIXEL_NOISE
+
     rivals = []
-    mine = image_of(row.effect) if image_of else None
     for name, (_, after) in options.items():
         if name == row.effect or float(before.mean() - after.mean()) < threshold:
             continue
-        theirs = image_of(name) if image_of and mine is not None else None
-        if paired_difference_ci(before, chosen, after, seed)[0] <= 0 or (
-            theirs is not None and float((theirs - mine).square().mean().sqrt()) < PIXEL_NOISE
-        ):
+        if paired_difference_ci(before, chosen, after, seed)[0] <= 0 or same_images(name):
             rivals.append(name)
     if not rivals:
         return row
