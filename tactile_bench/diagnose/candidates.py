@@ -719,7 +719,7 @@ def get_candidate(name: str) -> Candidate:
     return CANDIDATES[name]
 
 
-def bake_geometry(base: Base, effects: Mapping[str, Mapping[str, ParamValue]]) -> Base:
+def bake_fixed(base: Base, effects: Mapping[str, Mapping[str, ParamValue]]) -> Base:
     """``base`` with (deterministic) pose and geometry ``effects`` applied: a new depth and
     colour change, so later stages can be fitted without re-rendering them every step."""
     ctx = base.context()

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from tactile_bench.diagnose.candidates import (
     CANDIDATES,
     Base,
-    bake_geometry,
+    bake_fixed,
     get_candidate,
     render,
 )
@@ -197,7 +197,7 @@ def fit_candidate(
     stages = {"pose"} if cand.stage == "geometry" else {"pose", "geometry"}
     baked = {n: p for n, p in prior.items() if CANDIDATES[n].stage in stages}
     if baked and cand.stage != "pose" and not _random(baked):
-        base = bake_geometry(base, baked)
+        base = bake_fixed(base, baked)
         prior = {n: p for n, p in prior.items() if n not in baked}
     gen = torch.Generator().manual_seed(seed)
     order = torch.randperm(len(base), generator=gen)
