@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.data.braille import BrailleSet, build_braille_sets
+from tactile_bench.data.braille import SECOND_UNIT_SET, BrailleSet, build_braille_sets
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry import Poses
 from tactile_bench.sensor.depth import GelSpec, render_height, to_depth
@@ -137,3 +137,28 @@ def test_classifier_test_contacts_are_upright_and_off_grid(sets) -> None:
     assert test.yaw_deg.abs().max() <= 25.0
     assert test.press_mm.min() >= 0.3 and test.press_mm.max() <= 0.9
     assert not _rows(test) & _rows(grid)
+
+
+class OtherUnit(BlurrySensor):
+    """A second stand-in unit: a cooler background and a dimmer indentation."""
+
+    def background(self, size: int) -> torch.Tensor:
+        return super().background(size).flip(0) - 10
+
+    def render(self, bank, poses, gel, generator):
+        return (super().render(bank, poses, gel, generator) * 0.8).clamp(0, 255)
+
+
+def test_second_unit_renders_the_classifier_test_contacts_and_changes_no_other_set(
+    bank, sets
+) -> None:
+    both = _build(bank, seed=3, second_unit=OtherUnit())
+    assert list(both) == [*sets, SECOND_UNIT_SET]
+    for name, s in sets.items():  # byte-identical: its streams are not the others'
+        for key in ("depth", "sim", "real", "labels", "sim_background", "real_background"):
+            assert torch.equal(getattr(both[name], key), getattr(s, key)), (name, key)
+    first, second = sets["classifier_test"], both[SECOND_UNIT_SET]
+    assert _rows(second.poses) == _rows(first.poses)
+    assert torch.equal(second.depth, first.depth) and torch.equal(second.sim, first.sim)
+    assert torch.equal(second.real_background, OtherUnit().background(16).to(torch.uint8))
+    assert (second.real.float() - first.real.float()).abs().mean() > 5  # another unit's images

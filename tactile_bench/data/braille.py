@@ -35,6 +35,8 @@ from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.timing import stage as timed
 
 _POSE_KEYS = ("labels", "x_mm", "y_mm", "yaw_deg", "press_mm")
+#: the classifier_test contacts rendered by a second unit (``build_braille_sets(second_unit=)``)
+SECOND_UNIT_SET = "classifier_test_second_unit"
 _KEYS = ("depth", "sim", "real", "sim_background", "real_background") + tuple(
     f"pose_{k}" for k in _POSE_KEYS
 )
@@ -346,6 +348,7 @@ def build_braille_sets(
     chunk: int = 128,
     n_classifier: int | None = None,
     n_classifier_test: int = 837,
+    second_unit: RealSensor | None = None,
 ) -> dict[str, BrailleSet]:
     """The paper's sets: ``finetune``, ``test``, ``classifier`` and ``classifier_test``.
 
@@ -356,13 +359,18 @@ def build_braille_sets(
     classifiers are tested (see ``classifier_test_protocol``). Each set's selection, sim
     noise and real-sensor randomness come from its own stream spawned from ``seed``, so one
     set does not shift when another's size changes.
+
+    With ``second_unit``, ``classifier_test_second_unit`` holds the ``classifier_test``
+    contacts again with that sensor as "real": the same depth and sim images (it draws the
+    sim noise from ``classifier_test``'s stream), real images of another unit from a stream
+    of its own, so every other set is the same with or without it.
     """
     chars = tuple(chars)
     if tuple(bank.chars) != chars:
         raise TactileBenchError(
             f"build_braille_sets: bank holds {''.join(bank.chars)!r}, asked for {''.join(chars)!r}"
         )
-    select, *streams = np.random.SeedSequence(seed).spawn(9)
+    select, *streams = np.random.SeedSequence(seed).spawn(10)
     grid = finetune_test_protocol(chars)
     ft_idx, te_idx = draw_disjoint(
         grid.labels, (n_finetune, n_test), len(chars), int(select.generate_state(1)[0])
@@ -386,15 +394,21 @@ def build_braille_sets(
     }
     sim_bg = to_uint8(torch.as_tensor(sim_background))
     real_bg = to_uint8(real_sensor.background(gel.size))
-    total = sum(len(p) for p in poses.values())
+    # (name, contacts, real sensor, its background, sim stream, real stream)
+    jobs = [
+        (name, p, real_sensor, real_bg, streams[2 * k], streams[2 * k + 1])
+        for k, (name, p) in enumerate(poses.items())
+    ]
+    if second_unit is not None:  # stream 8 is its own: spawn(10) begins with spawn(9)'s nine
+        unit_bg = to_uint8(second_unit.background(gel.size))
+        contacts = poses["classifier_test"]
+        jobs.append((SECOND_UNIT_SET, contacts, second_unit, unit_bg, streams[6], streams[8]))
+    total = sum(len(job[1]) for job in jobs)
     out = {}
     with tqdm(total=total, desc="braille sets", unit="contact", disable=not progress) as bar:
-        for k, (name, p) in enumerate(poses.items()):
-            gens = [
-                torch.Generator().manual_seed(int(streams[2 * k + j].generate_state(1)[0]))
-                for j in range(2)
-            ]
+        for name, p, sensor, background, *stream in jobs:
+            gens = [torch.Generator().manual_seed(int(s.generate_state(1)[0])) for s in stream]
             out[name] = render_braille_set(
-                bank, p, gel, sim_optics, sim_bg, real_sensor, real_bg, *gens, chunk, bar
+                bank, p, gel, sim_optics, sim_bg, sensor, background, *gens, chunk, bar
             )
     return out
