@@ -1,0 +1,310 @@
+"""The ``calibrated`` translator: the gap diagnosis's fitted effects as a simulator, no network.
+
+``fit_pairs`` turns (depth, real foreground) pairs into paired data, runs the diagnosis's
+"which" step (``which.explain_gap``) on them and keeps what it selected: the effects and their
+fitted parameters, plus white camera noise that tops the model's own pixel noise up to the
+real frames' (measured frame to frame, ``metrics.estimate_pixel_noise``, as
+``shrink.match_noise`` does). ``translate_foreground`` renders the plain simulator's image of
+each depth with those effects added (``candidates.render``) and that noise. Unfitted it is the
+plain ``sim`` translator, image for image.
+
+Both sides of a pair share one no-contact frame: the sim is rendered noise-free over the
+simulator's frame (``sensor.background.sim_background``) and the real foreground is put on that
+same frame, so the diagnosis runs its "composited" case (no background line) and the
+translator's foreground is the contact's change alone, ready for any sensor's background.
+
+It lives in ``diagnose/`` rather than ``translators/``: it is built on the diagnosis, a layer
+above the translators (docs/architecture.md), and registers through the entry-point group like
+any plugin. It only ever sees depth and real foregrounds: no sensor profile, no surrogate.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import torch
+from lightning.pytorch.loggers import Logger
+from pydantic import Field, field_validator
+
+from tactile_bench.diagnose.candidates import Base, get_candidate, make_base, render
+from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.report import jsonable
+from tactile_bench.diagnose.run import _effects_of, stratified_split
+from tactile_bench.diagnose.which import explain_gap
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.io import atomic_write_json
+from tactile_bench.metrics.noise import estimate_pixel_noise
+from tactile_bench.sensor.background import sim_background
+from tactile_bench.training import FitReport
+from tactile_bench.translators.base import Translator, foreground_to_image, image_to_foreground
+from tactile_bench.translators.sim import SimConfig, SimTranslator
+
+log = logging.getLogger("tactile_bench")
+#: the buffers a fit sets; their shapes depend on the fit, so loading takes the file's shapes
+FITTED_BUFFERS = ("record", "noise_std", "lookup_depth", "lookup_target", "sim_table")
+
+
+class CalibratedConfig(SimConfig):
+    """What the diagnosis searches and how the pairs are split (``max_steps`` is ignored)."""
+
+    candidates: list[str] | None = Field(
+        default=None,
+        description="effects the diagnosis may select (None: its default list, all of them)",
+    )
+    fit_fraction: float = Field(
+        default=0.5, gt=0.0, lt=1.0, description="share of the pairs the effects are fitted on"
+    )
+    strata: int = Field(
+        default=4, ge=1, description="contact-area bins the fit/held split is stratified by"
+    )
+    chunk: int = Field(default=256, ge=1, description="depths rendered at a time")
+
+    @field_validator("candidates")
+    @classmethod
+    def _known(cls, names: list[str] | None) -> list[str] | None:
+        if names is None:
+            return None
+        if not names:
+            raise ValueError("give at least one effect, or null for the diagnosis's list")
+        for name in names:
+            try:
+                get_candidate(name)
+            except TactileBenchError as exc:
+                raise ValueError(str(exc)) from None
+        return names
+
+
+def area_strata(depth: torch.Tensor, strata: int) -> list[str]:
+    """A stand-in label per pair: its contact area's quantile bin (equal-count bins).
+
+    Translators get no labels. Stratifying by contact area keeps the fit and held-out halves
+    alike in what the effects act on (a larger contact carries more of the gap), and for
+    braille the area follows the number of dots, so it stands in for the character mix.
+    """
+    area = (depth > 0).flatten(1).sum(1)
+    order = torch.argsort(area, stable=True)
+    bins = torch.empty(len(depth), dtype=torch.long)
+    bins[order] = torch.arange(len(depth)) * strata // max(len(depth), 1)
+    return [f"area{int(b)}" for b in bins]
+
+
+def _text(buffer: torch.Tensor) -> str:
+    return bytes(buffer.tolist()).decode("utf-8")
+
+
+def _buffer(text: str) -> torch.Tensor:
+    return torch.tensor(list(text.encode("utf-8")), dtype=torch.uint8)
+
+
+class CalibratedTranslator(SimTranslator):
+    """Depth -> sim image + the effects the diagnosis fitted + measured noise. Unfitted: sim.
+
+    ``trainable`` stays False: the fit is a search, not Lightning training steps.
+    """
+
+    name = "calibrated"
+    Config = CalibratedConfig
+
+    def __init__(self, config: CalibratedConfig | dict[str, Any] | None = None) -> None:
+        super().__init__(config)
+        for name in FITTED_BUFFERS:
+            self.register_buffer(name, torch.zeros(0))
+        self._record: dict[str, Any] = {}
+        self._cache: dict[str, torch.Tensor] = {}  # response lookups, refitted once a process
+
+    @property
+    def fitted(self) -> bool:
+        return bool(self._record)
+
+    # ------------------------------------------------------------------ fit
+    def fit_pairs(
+        self,
+        depth: torch.Tensor,
+        foreground: torch.Tensor,
+        out_dir: Path,
+        trainer: dict[str, Any] | None = None,
+        loggers: list[Logger] | None = None,
+    ) -> FitReport | None:
+        """Diagnose the gap of these pairs and keep the selected effects (module docstring).
+
+        Writes ``out_dir/calibration.json`` (the diagnosis's full "which" result); returns
+        None: nothing is trained. ``trainer``'s ``enable_progress_bar`` shows the search.
+        """
+        start = time.perf_counter()
+        config: CalibratedConfig = self.config
+        depth, foreground = depth.float().clamp(min=0), foreground.float()
+        size = int(depth.shape[-1])
+        background = sim_background(size)
+        sim = self._render_plain(depth, background)
+        real = foreground_to_image(foreground, background)
+        n = len(depth)
+        labels = area_strata(depth, config.strata)
+        data = PairedData(
+            depth, sim, real, background, None, labels, [f"{i:05d}" for i in range(n)]
+        )
+        fit_idx, held_idx = stratified_split(labels, config.fit_fraction, config.seed)
+        progress = bool((trainer or {}).get("enable_progress_bar", True))
+        which = explain_gap(
+            data, fit_idx, held_idx, config.candidates, seed=config.seed, progress=progress
+        )
+        effects = _effects_of(which)
+        # what render needs later: the response lookup's fit pairs and the sim optics model,
+        # exactly as the diagnosis built them (make_base with the fit split)
+        fit_base = make_base(data, fit_idx, lookup_from=fit_idx, lookup_cache={})
+        self._set_state(fit_base, effects)
+        real_std = estimate_pixel_noise(foreground)
+        own_std = estimate_pixel_noise(self._model_foreground(depth, self._generator(None)))
+        added = torch.zeros(3)
+        if real_std is not None and own_std is not None:
+            added = (real_std.square() - own_std.square()).clamp(min=0.0).sqrt() * 255.0
+        self.noise_std = added.float()
+        self._record = {
+            "effects": effects,
+            "unexplained": float(which.unexplained),
+            "residual_flagged": bool(which.residual_flagged),
+            "gap_before": float(which.gap_before),
+            "gap_after": float(which.gap_after),
+            "noise_added": [round(float(v), 4) for v in added],
+            "noise_real": None if real_std is None else [float(v) * 255.0 for v in real_std],
+            "n_fit": len(fit_idx),
+            "n_held": len(held_idx),
+            "size": size,
+            "fit_seconds": round(time.perf_counter() - start, 2),
+        }
+        self.record = _buffer(json.dumps(self._record, sort_keys=True))
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(
+            out_dir / "calibration.json", jsonable({**self._record, "which": which.to_dict()})
+        )
+        log.info(
+            "calibrated: %s in %.1f s, unexplained %.2f",
+            list(effects) or "no effect",
+            self._record["fit_seconds"],
+            which.unexplained,
+        )
+        return None
+
+    def _set_state(self, fit_base: Base, effects: Mapping[str, Mapping[str, float]]) -> None:
+        """Keep the lookup's fit pairs (only when ``optical_response`` needs them) and the
+        sim optics model; renders share one cache of lookups fitted from them."""
+        empty = torch.zeros(0)
+        lookup = fit_base.lookup_fit if "optical_response" in effects else None
+        self.lookup_depth = empty if lookup is None else lookup[0].clone()
+        self.lookup_target = empty if lookup is None else lookup[1].clone()
+        table = fit_base.sim_lookup
+        self.sim_table = empty if table is None else table.clone()
+        self.noise_std = empty  # measured next, against the model's own noise
+        self._record = {"effects": {k: dict(v) for k, v in effects.items()}}
+        self._cache = {}
+
+    def fit_diagnostics(self) -> dict[str, Any]:
+        """The selection: effects and parameters, unexplained share, noise added, fit time."""
+        return dict(self._record)
+
+    # ------------------------------------------------------------------ render
+    def _render_plain(self, depth: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+        """The simulator's noise-free image of each depth, in chunks."""
+        out = torch.empty(len(depth), 3, *depth.shape[-2:])
+        for i in range(0, len(depth), self.config.chunk):
+            out[i : i + self.config.chunk] = self.optics.render(
+                depth[i : i + self.config.chunk].float(), background, None
+            )
+        return out
+
+    def _base(self, depth: torch.Tensor, background: torch.Tensor) -> Base:
+        """The candidate simulator's base scene of ``depth`` (the diagnosis's ``make_base`` of
+        noise-free sim images on ``background``), with the fitted lookup inputs attached."""
+        sim = self.optics.render(depth, background, None)
+        names = [""] * len(depth)  # real is not read without a lookup split: sim stands in
+        base = make_base(PairedData(depth, sim, sim, background, None, names, names))
+        lookup = (self.lookup_depth, self.lookup_target) if self.lookup_depth.numel() else None
+        table = self.sim_table if self.sim_table.numel() else None
+        return replace(base, lookup_fit=lookup, lookup_cache=self._cache, sim_lookup=table)
+
+    def _model_foreground(self, depth: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """Foregrounds (N, 3, S, S) of sim + effects + added noise, rendered in chunks."""
+        size = int(depth.shape[-1])
+        fitted_size = self._record.get("size", size)
+        if size != fitted_size:
+            raise TactileBenchError(
+                f"translator {self.name!r}: fitted on {fitted_size} x {fitted_size} depths, "
+                f"got {size} x {size}"
+            )
+        background = sim_background(size)
+        effects = self._record["effects"]
+        std = self.noise_std.float()[None, :, None, None] if self.noise_std.numel() else None
+        out = torch.empty(len(depth), 3, size, size)
+        with torch.no_grad():
+            for i in range(0, len(depth), self.config.chunk):
+                part = depth[i : i + self.config.chunk].float().cpu().clamp(min=0)
+                image = render(self._base(part, background), effects, generator)
+                if std is not None and bool((std > 0).any()):
+                    noise = torch.randn(image.shape, generator=generator)
+                    image = (image + std * noise).clamp(0.0, 255.0)
+                out[i : i + len(part)] = image_to_foreground(image, background)
+        return out
+
+    def translate_foreground(
+        self, depth: torch.Tensor, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """Fitted: sim + effects + noise against the simulator's frame; unfitted: plain sim."""
+        if not self.fitted:
+            return super().translate_foreground(depth, generator)
+        return self._model_foreground(depth, self._generator(generator)).to(depth.device)
+
+    @torch.no_grad()
+    def translate(
+        self,
+        depth: torch.Tensor,
+        background: torch.Tensor,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """The foreground composited on ``background``; unfitted: plain sim on it."""
+        if not self.fitted:
+            return super().translate(depth, background, generator)
+        return Translator.translate(self, depth, background, generator)
+
+    # ------------------------------------------------------------------ state
+    def _load_from_state_dict(
+        self,
+        state_dict: dict[str, Any],
+        prefix: str,
+        local_metadata: dict[str, Any],
+        strict: bool,
+        missing_keys: list[str],
+        unexpected_keys: list[str],
+        error_msgs: list[str],
+    ) -> None:
+        """Fitted buffers take the file's shapes (they depend on the fit), then the record
+        is read back; an unreadable one is a load error (RuntimeError), as a wrong shape is."""
+        for name in FITTED_BUFFERS:
+            value = state_dict.get(prefix + name)
+            if isinstance(value, torch.Tensor):
+                self._buffers[name] = torch.empty_like(value)
+        super()._load_from_state_dict(
+            state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs
+        )
+        self._cache = {}
+        self._record = {}
+        if not self.record.numel():
+            return
+        try:
+            record = json.loads(_text(self.record))
+            for name, params in record["effects"].items():
+                get_candidate(name).check(params)
+                if not all(
+                    isinstance(v, float | int) and math.isfinite(v) for v in params.values()
+                ):
+                    raise ValueError(f"non-numeric parameter of {name!r}")
+        except (ValueError, KeyError, TypeError, AttributeError, TactileBenchError) as exc:
+            # raised, not appended to error_msgs: torch puts those below a header line
+            raise RuntimeError(f"unreadable calibration record ({exc})") from None
+        self._record = record
