@@ -120,14 +120,19 @@ class SimOptics:
         px: torch.Tensor,
         py: torch.Tensor,
         pz: torch.Tensor,
+        lights: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] | None = None,
     ) -> list[torch.Tensor]:
-        """Diffuse + specular of each light (before ambient and intensity); inputs broadcast."""
+        """Diffuse + specular of each light (before ambient and intensity); inputs broadcast.
+
+        ``lights``: (x, y, z) of each light, tensors broadcasting with the pixels (one light
+        position per image); None: this optics' own ``light_positions``.
+        """
         vx, vy, vz = -px, -py, self.camera_distance_mm - pz
         inv = torch.rsqrt(vx * vx + vy * vy + vz * vz)
         vx, vy, vz = vx * inv, vy * inv, vz * inv
         n_dot_v = nx * vx + ny * vy + nz * vz
         channels = []
-        for lx, ly, lz in self.light_positions().tolist():
+        for lx, ly, lz in self.light_positions().tolist() if lights is None else lights:
             ax, ay, az = lx - px, ly - py, lz - pz
             inv = torch.rsqrt(ax * ax + ay * ay + az * az)
             ax, ay, az = ax * inv, ay * inv, az * inv
@@ -151,11 +156,8 @@ class SimOptics:
         """
         n, _, hh, ww = depth.shape
         flat = _flat_shading(self, gel.width_mm, gel.height_mm, hh, ww)  # (3, H, W)
-        dx, dy = gel.width_mm / ww, gel.height_mm / hh
-        d_row, d_col = torch.gradient(depth[:, 0], spacing=(dy, dx), dim=(-2, -1))
-        active = (depth[:, 0] != 0).logical_or_(d_row != 0).logical_or_(d_col != 0)
-        idx = active.view(-1).nonzero().squeeze(1)
-        if depth.requires_grad or idx.numel() > _DENSE_ABOVE * active.numel():  # dense
+        d_row, d_col, idx, dense = _touched(depth, gel)
+        if dense:
             inv = torch.rsqrt(d_row * d_row + d_col * d_col + 1)
             px, py = _pixel_centres(hh, ww, gel, depth.dtype)
             ch = self._phong(-d_col * inv, d_row * inv, inv, px, py[:, None], depth[:, 0])
@@ -180,6 +182,81 @@ class SimOptics:
             flat_out.index_copy_(0, dest + c * hh * ww, values[c])
         return out.view(n, 3, hh, ww)
 
+    def shade_change_lit(
+        self, depth: torch.Tensor, gel: GelSpec, lights: torch.Tensor, colours: torch.Tensor
+    ) -> torch.Tensor:
+        """``shade_change`` with each image's own lights (N, 3, H, W), 0-255 scale.
+
+        ``lights`` (N, 3, 3): each image's light positions (light, xyz) in mm; ``colours``
+        (N, 3, 3): light i's contribution to colour channel c, intensity included (this
+        optics' nominal lights: ``intensity`` times the identity). The flat gel is shaded
+        under the same lights, so only the contact's change is returned; ``ambient`` cancels.
+        Sparse like ``shade_change``: only touched pixels are shaded (twice: pressed, flat).
+        """
+        n, _, hh, ww = depth.shape
+        d_row, d_col, idx, dense = _touched(depth, gel)
+        px, py = _pixel_centres(hh, ww, gel, depth.dtype)
+        lights, colours = lights.to(depth.dtype), colours.to(depth.dtype)
+        if dense:
+            lit = [tuple(lights[:, i, k, None, None] for k in range(3)) for i in range(3)]
+            inv = torch.rsqrt(d_row * d_row + d_col * d_col + 1)
+            pressed = self._phong(-d_col * inv, d_row * inv, inv, px, py[:, None], depth[:, 0], lit)
+            zero = torch.zeros_like(inv)
+            flat = self._phong(zero, zero, zero + 1, px, py[:, None], zero, lit)
+            diff = torch.stack(pressed, 1).sub_(torch.stack(flat, 1))  # (N, light, H, W)
+            return torch.einsum("nlhw,nlc->nchw", diff, colours)
+        out = depth.new_zeros(n, 3, hh * ww)
+        if idx.numel() == 0:
+            return out.view(n, 3, hh, ww)
+        pix = idx % (hh * ww)
+        image = idx // (hh * ww)
+        g_row, g_col = d_row.reshape(-1)[idx], d_col.reshape(-1)[idx]
+        inv = torch.rsqrt(g_row * g_row + g_col * g_col + 1)
+        at = lights[image]  # (M, light, xyz)
+        lit = [tuple(at[:, i, k] for k in range(3)) for i in range(3)]
+        px, py = px[pix % ww], py[pix // ww]
+        pressed = self._phong(-g_col * inv, g_row * inv, inv, px, py, depth.reshape(-1)[idx], lit)
+        zero = torch.zeros_like(inv)
+        flat = self._phong(zero, zero, zero + 1, px, py, zero, lit)
+        diff = torch.stack(pressed, 1).sub_(torch.stack(flat, 1))  # (M, light)
+        values = torch.einsum("ml,mlc->cm", diff, colours[image])
+        dest = (idx - pix) * 3 + pix  # offset of channel 0, as in ``shade_change``
+        flat_out = out.view(-1)
+        for c in range(3):
+            flat_out.index_copy_(0, dest + c * hh * ww, values[c])
+        return out.view(n, 3, hh, ww)
+
+    def contact_change(
+        self,
+        depth: torch.Tensor,
+        gel: GelSpec | None = None,
+        lights: torch.Tensor | None = None,
+        colours: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """What ``render`` adds to the background before its noise (N, 3, S, S), 0-255 scale:
+        the shading change times ``diff_scale``, low-passed. With ``lights`` and ``colours``
+        (see ``shade_change_lit``) each image is lit by its own lights. Not clamped."""
+        gel = gel or GelSpec(size=depth.shape[-1])
+        sigma = self._blur_sigma_px(depth, gel)
+        out = depth.new_empty(depth.shape[0], 3, *depth.shape[-2:])
+        for k in range(0, depth.shape[0], _CHUNK):
+            part = depth[k : k + _CHUNK]
+            if lights is None or colours is None:
+                change = self.shade_change(part, gel)
+            else:
+                change = self.shade_change_lit(
+                    part, gel, lights[k : k + _CHUNK], colours[k : k + _CHUNK]
+                )
+            out[k : k + _CHUNK] = _gaussian_blur(change.mul_(self.diff_scale), sigma)
+        return out
+
+    def _blur_sigma_px(self, depth: torch.Tensor, gel: GelSpec) -> tuple[float, float]:
+        """TACTO's low-pass sigma in pixels along (columns, rows) of this image size."""
+        return (
+            self.blur_sigma_mm * depth.shape[-1] / gel.width_mm,
+            self.blur_sigma_mm * depth.shape[-2] / gel.height_mm,
+        )
+
     def skip_random(self, n: int, gel: GelSpec, generator: torch.Generator) -> None:
         """Advance ``generator`` exactly as ``render`` of ``n`` images would, without
         rendering (the noise draws): parts of one stream can then render in parallel."""
@@ -203,10 +280,7 @@ class SimOptics:
         size = depth.shape[-1]
         gel = gel or GelSpec(size=size)
         n = depth.shape[0]
-        sigma = (
-            self.blur_sigma_mm * size / gel.width_mm,
-            self.blur_sigma_mm * depth.shape[-2] / gel.height_mm,
-        )
+        sigma = self._blur_sigma_px(depth, gel)
         image = depth.new_empty(n, 3, *depth.shape[-2:])
         background = background.to(image.dtype)
         noisy = generator is not None and self.noise_std > 0
@@ -219,6 +293,21 @@ class SimOptics:
                 part.add_(noise.mul_(self.noise_std))
             image[k : k + _CHUNK] = part.clamp_(0, 255)
         return image
+
+
+def _touched(
+    depth: torch.Tensor, gel: GelSpec
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, bool]:
+    """Depth gradients (N, H, W) in mm/mm, the flat indices of the pixels whose shading can
+    differ from the flat gel's (the pixel or a neighbour pressed), and whether shading all
+    pixels densely is cheaper (most are touched) or needed (differentiating the depth)."""
+    hh, ww = depth.shape[-2:]
+    dx, dy = gel.width_mm / ww, gel.height_mm / hh
+    d_row, d_col = torch.gradient(depth[:, 0], spacing=(dy, dx), dim=(-2, -1))
+    active = (depth[:, 0] != 0).logical_or_(d_row != 0).logical_or_(d_col != 0)
+    idx = active.view(-1).nonzero().squeeze(1)
+    dense = depth.requires_grad or idx.numel() > _DENSE_ABOVE * active.numel()
+    return d_row, d_col, idx, dense
 
 
 def _skip_noise(optics: SimOptics, n: int, hw: tuple[int, int], generator: torch.Generator) -> None:
