@@ -3,11 +3,15 @@ image and background alike; camera noise measured on real foregrounds."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
+from tactile_bench.cli import main
+from tactile_bench.data.braille import BrailleSet
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.background import sim_background
 from tactile_bench.sensor.depth import GelSpec
@@ -204,3 +208,38 @@ def test_config_errors_are_one_line_naming_the_key(config: dict, key: str) -> No
         make(**config)
     message = str(info.value)
     assert "\n" not in message and f"config key '{key}" in message
+
+
+RECIPE = """
+name: aug_chain
+stages:
+  - name: braille
+    kind: braille_data
+    config: {chars: AB, n_finetune: 40, n_test: 16, n_classifier: 8}
+  - name: fit_aug
+    kind: fit_translator
+    inputs: {braille: braille}
+    config: {translator: lighting_aug, fraction: 0.5, eval_pairs: 0}
+  - name: translate_aug
+    kind: translate
+    inputs: {data: braille, translator: fit_aug}
+    config: {sets: [test]}
+"""
+
+
+def test_a_recipe_fits_the_noise_then_translates_with_it(tmp_path: Path) -> None:
+    (tmp_path / "chain.yaml").write_text(RECIPE)
+    run_dir = tmp_path / "run"
+    assert (
+        main(["fit", str(tmp_path / "chain.yaml"), "--run-dir", str(run_dir), "--no-progress"]) == 0
+    )
+    run = json.loads((run_dir / "run.json").read_text())
+    dirs = {s["name"]: run_dir / s["directory"] for s in run["stages"]}
+    fit = LightingAugTranslator.load(dirs["fit_aug"] / "translator.pt")
+    assert bool(fit.camera_noise_fitted)
+    assert json.loads((dirs["fit_aug"] / "metrics.json").read_text())["fit_pairs"] == 20
+    # the translate stage used that fitted translator: same seed, same images
+    test = BrailleSet.load(dirs["braille"] / "test.npz")
+    expected = fit.translate(test.depth, test.real_background.float(), gen(0))  # recipe seed
+    images = np.load(dirs["translate_aug"] / "test.npz")["images"]
+    torch.testing.assert_close(torch.from_numpy(images).float(), expected.round(), atol=0, rtol=0)
