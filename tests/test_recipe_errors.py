@@ -34,6 +34,14 @@ CASES = {
         GOOD.replace("n_test: 4}", "n_test: 4, real_sensor: nosuch}"),
         "real_sensor",
     ),
+    "unknown second unit": (
+        GOOD.replace("n_test: 4}", "n_test: 4, second_unit: nosuch}"),
+        "second_unit",
+    ),
+    "second unit of real data": (
+        GOOD.replace("n_test: 4}", "n_test: 4, source: /nonexistent, second_unit: digit-b}"),
+        "second_unit: needs source: surrogate",
+    ),
     "bad yaml": ("name: [t\nstages: -", "YAML"),
     "no stages": ("name: t\nstages: []\n", "stages"),
 }

@@ -8,6 +8,9 @@ stage draws one as ``train_braille.py`` does, from the recipe's seed, and writes
 (``files_train_test.npy``), never into the dataset. ``sim_source: release`` adds the
 release's TACTO frames (``sim_release``) for the paper's Sim row.
 The stage's metrics say which sets carry real and sim images (``content``).
+``second_unit: PROFILE`` renders the classifier test contacts again with another surrogate
+unit as "real" (``classifier_test_second_unit``): the classify stages score every model on
+it, and nothing else reads it, so no translator or classifier sees that unit before.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from pydantic import Field
+from pydantic import Field, SerializerFunctionWrapHandler, model_serializer
 
 from tactile_bench.data.braille import build_braille_sets
 from tactile_bench.data.braille_layout import (
@@ -49,6 +52,7 @@ from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.heightfield import build_bank
 from tactile_bench.sensor.optics import SimOptics
 
+#: the sets every braille_data stage writes (``second_unit`` adds classifier_test_second_unit)
 SETS = ("finetune", "test", "classifier", "classifier_test")
 #: real source: which finetune pairs the translator split tests on (fit_translator skips them)
 HELD_OUT_FILE = "finetune_in_test.npy"
@@ -83,6 +87,12 @@ class BrailleDataConfig(StageConfig):
     real_sensor: str = Field(
         default="digit", description="surrogate profile playing 'real': a name or a YAML path"
     )
+    second_unit: str | None = Field(
+        default=None,
+        description="surrogate profile (a name or a YAML path) of a second unit that renders "
+        "the classifier_test contacts again, used for nothing but testing every classifier "
+        "(the table's second-unit column); None: no such set",
+    )
     image_size: int = Field(default=64, ge=16, le=256, description="image side in pixels")
     oversample: int = Field(
         default=2, ge=1, le=8, description="depth rendered at this many times the image size"
@@ -97,6 +107,15 @@ class BrailleDataConfig(StageConfig):
     split_test_ratio: float = Field(
         default=TEST_RATIO, gt=0.0, lt=1.0, description="test_ratio of a drawn split"
     )
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Unset, ``second_unit`` is left out of the dump (the cache key): the stages of
+        recipes without it keep their keys and stay cached."""
+        data = handler(self)
+        if self.second_unit is None:
+            data.pop("second_unit", None)
+        return data
 
 
 def source_root(config: BrailleDataConfig, base_dir: Path) -> Path:
@@ -116,6 +135,16 @@ def _check(config: BrailleDataConfig, base_dir: Path) -> None:
     if unknown:
         raise TactileBenchError(f"chars: not braille characters of the paper: {''.join(unknown)}")
     check_real_sensor(config.real_sensor, base_dir)
+    if config.second_unit is not None:
+        if config.source != "surrogate":
+            raise TactileBenchError(
+                "second_unit: needs source: surrogate (a real-data source's classifier_test "
+                "frames have no poses another unit could render)"
+            )
+        try:
+            real_sensor(config.second_unit, base_dir)
+        except TactileBenchError as exc:
+            raise TactileBenchError(f"second_unit: {exc}") from None
     if config.source == "surrogate":
         if config.sim_source == "release":
             raise TactileBenchError(
@@ -132,6 +161,9 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     bank = build_bank(chars, BrailleSpec())
     simulated = config.source == "surrogate"
     real = real_sensor(config.real_sensor, ctx.recipe_dir)
+    second_unit = (
+        None if config.second_unit is None else real_sensor(config.second_unit, ctx.recipe_dir)
+    )
     sets = build_braille_sets(
         bank,
         gel,
@@ -146,8 +178,9 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         n_classifier=config.n_classifier,
         n_classifier_test=config.n_classifier_test if simulated else len(chars),
         progress=ctx.progress,
+        second_unit=second_unit,
     )
-    content: dict[str, Any] = {name: {"has_sim": True, "has_real": True} for name in SETS}
+    content: dict[str, Any] = {name: {"has_sim": True, "has_real": True} for name in sets}
     outputs = {}
     extra: dict[str, Any] = {}
     if not simulated:
@@ -196,6 +229,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     outputs["preview"] = "preview.png"
     real = config.real_sensor if config.source == "surrogate" else config.source
     counts = {n: len(sets[n]) for n in sets}
+    if second_unit is not None:  # the profile's name, as the table's column names the unit
+        extra["second_unit"] = second_unit.name
     return outputs, {"real_sensor": real, "content": content} | extra | counts
 
 
