@@ -5,7 +5,8 @@ another classify stage's models (input ``init``, same seeds), optionally fine-tu
 fraction of the real fine-tuning pool, test on the real classifier test set
 (upright, off-grid contacts). The same test contacts rendered by the simulator give the
 accuracy on sim at identical poses: the difference between the two is the sensor's reality
-gap alone, with no pose shift mixed in. A held-out part of the training images is scored too.
+gap alone, with no pose shift mixed in. A held-out part of the training images is scored too,
+and, when the data stage has a ``second_unit``, the same test contacts rendered by that unit.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from tactile_bench.classify.train import (
     evaluate,
     train_classifier,
 )
-from tactile_bench.data.braille import BrailleSet
+from tactile_bench.data.braille import SECOND_UNIT_SET, BrailleSet
 from tactile_bench.data.datamodule import stratified_split, stratified_subset
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
@@ -314,10 +315,21 @@ def load_classifier(path: Path) -> BrailleClassifier:
     return model.eval()
 
 
+def _second_unit(ctx: StageContext) -> tuple[str, torch.Tensor, torch.Tensor] | None:
+    """The data stage's second unit: its name, and the real foregrounds and labels of the
+    classifier test contacts it rendered (None when the data stage has no second unit)."""
+    data = ctx.input("data")
+    if SECOND_UNIT_SET not in data.outputs:
+        return None
+    unit = BrailleSet.load(data.path(SECOND_UNIT_SET))
+    return str(data.metrics.get("second_unit")), unit.foreground("real"), unit.labels
+
+
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: ClassifyConfig = ctx.config
     foreground, labels = _training_foreground(ctx)
     test = BrailleSet.load(ctx.input("data").path("classifier_test"))
+    unit = _second_unit(ctx)
     test_fg = test.foreground("real")
     n_classes = int(max(labels.max(), test.labels.max())) + 1
     classes = list(CHARACTERS[:n_classes])
@@ -337,7 +349,16 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             if _has(ctx, "classifier_test", "has_sim")
             else None
         )
-        per_seed.append({"seed": seed, "test": real, "test_sim": sim, "heldout": heldout})
+        on_unit = evaluate(model, *unit[1:], num_classes=n_classes) if unit else None
+        per_seed.append(
+            {
+                "seed": seed,
+                "test": real,
+                "test_sim": sim,
+                "second_unit": on_unit,
+                "heldout": heldout,
+            }
+        )
         save_classifier(model, ctx.directory / f"model_seed{seed}.pt")
 
     first = per_seed[0]["test"]
@@ -367,6 +388,11 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             _summary([s["test_sim"]["accuracy"] for s in per_seed])
             if per_seed[0]["test_sim"]
             else None
+        ),
+        # the same contacts through another unit, seen by no stage before (braille_data)
+        "second_unit": unit[0] if unit else None,
+        "second_unit_accuracy": (
+            _summary([s["second_unit"]["accuracy"] for s in per_seed]) if unit else None
         ),
         "heldout_accuracy": (
             _summary([s["heldout"]["accuracy"] for s in per_seed])
