@@ -9,7 +9,9 @@ import torch
 
 from tactile_bench.report.figures import confusion_png, per_class_bar_png, sample_grid_png
 from tactile_bench.report.table import (
+    COLUMNS,
     PAPER_TABLE,
+    columns,
     format_table_for_terminal,
     results_markdown,
     summarize,
@@ -107,3 +109,24 @@ def test_sample_grid_png(tmp_path: Path) -> None:
     assert _is_png(path)
     with pytest.raises(ValueError):
         sample_grid_png({"x": torch.rand(1, 2, 8, 8)}, ["a"], tmp_path / "bad.png")
+
+
+def test_second_unit_column_beside_ours_only_when_a_row_has_it() -> None:
+    rows = [
+        {"row": "sim", "accuracy": 0.3, "precision": 0.3, "recall": 0.3},
+        {"row": "real", "accuracy": 1.0, "precision": 1.0, "recall": 1.0,
+         "second_unit_accuracy": [0.41, 0.45], "second_unit": "digit-b"},
+    ]  # fmt: skip
+    header = "accuracy % on second unit (digit-b)"
+    assert columns(rows[:1]) == list(COLUMNS)  # no row has it: no column
+    assert header not in results_markdown(rows[:1])
+    assert columns(rows)[COLUMNS.index("accuracy % (ours)") + 1] == header
+    md = results_markdown(rows)
+    lines = [line.split(" | ") for line in md.splitlines() if line.startswith("|")]
+    assert len({len(cells) for cells in lines}) == 1  # every row has the column's cell
+    real = next(cells for cells in lines if "100.00" in cells)
+    sim = next(cells for cells in lines if cells[0] == "| Sim" and "30.00" in cells)
+    assert real[real.index("100.00") + 1] == "43.00 ± 2.83"  # beside ours, mean ± std in %
+    assert sim[sim.index("30.00") + 1] == "—"
+    assert "another unit (digit-b)" in md
+    assert header in format_table_for_terminal(rows)

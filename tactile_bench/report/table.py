@@ -3,7 +3,10 @@
 Rows of results are dicts: ``row`` (an id of :data:`PAPER_TABLE`, or a new id with optional
 ``source`` / ``finetune`` labels), ``accuracy``, ``precision``, ``recall`` as fractions in
 [0, 1] (what ``classify.train.evaluate`` returns), each a float, a list over seeds, or a
-``{"mean": .., "std": ..}`` summary; and an optional ``extra`` dict of notes.
+``{"mean": .., "std": ..}`` summary; and an optional ``extra`` dict of notes. A row may
+also carry ``second_unit_accuracy`` (the same form) and ``second_unit`` (the unit's name):
+the accuracy on the same test contacts rendered by another unit, a column of its own beside
+ours, shown when some row has it.
 """
 
 from __future__ import annotations
@@ -55,6 +58,8 @@ COLUMNS = (
     "recall (paper)",
     "notes",
 )
+#: where the second unit's column goes: beside our accuracy
+_SECOND_UNIT_AT = COLUMNS.index("accuracy % (ours)") + 1
 
 
 def summarize(value: Any) -> tuple[float, float, int] | None:
@@ -99,9 +104,26 @@ def _notes(extra: Mapping[str, Any] | None) -> str:
     return "; ".join(f"{k}={_fmt_note(v)}" for k, v in extra.items() if v is not None)
 
 
+def second_units(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The names of the second units the rows were tested on (none: no such column)."""
+    names = {str(r.get("second_unit")) for r in rows if r.get("second_unit_accuracy") is not None}
+    return sorted(names)
+
+
+def columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """:data:`COLUMNS`, with the second unit's accuracy beside ours when a row has it."""
+    out = list(COLUMNS)
+    names = second_units(rows)
+    if names:
+        out.insert(_SECOND_UNIT_AT, f"accuracy % on second unit ({', '.join(names)})")
+    return out
+
+
 def table_cells(rows: Sequence[Mapping[str, Any]]) -> list[list[str]]:
     """One list of cell strings per row: every paper row (in the paper's order, "—" where we
-    have no result), followed by rows of ours that the paper does not have."""
+    have no result), followed by rows of ours that the paper does not have; the cells are
+    those of ``columns(rows)``."""
+    units = second_units(rows)
     by_id: dict[str, Mapping[str, Any]] = {}
     for r in rows:
         by_id[str(r["row"])] = r
@@ -126,14 +148,20 @@ def table_cells(rows: Sequence[Mapping[str, Any]]) -> list[list[str]]:
                 _notes(ours.get("extra")),
             ]
         )
+        if units:
+            cell = _fmt(ours.get("second_unit_accuracy"), 100.0, 2)
+            if len(units) > 1 and ours.get("second_unit_accuracy") is not None:
+                cell += f" ({ours.get('second_unit')})"  # the header names several
+            cells[-1].insert(_SECOND_UNIT_AT, cell)
     return cells
 
 
 def results_markdown(rows: Sequence[Mapping[str, Any]], title: str = "Results") -> str:
     """A Markdown section: our numbers (mean ± sample std over seeds) beside the paper's."""
     lines = [f"## {title}", ""]
-    lines.append("| " + " | ".join(COLUMNS) + " |")
-    lines.append("| " + " | ".join("---" for _ in COLUMNS) + " |")
+    header = columns(rows)
+    lines.append("| " + " | ".join(header) + " |")
+    lines.append("| " + " | ".join("---" for _ in header) + " |")
     for cells in table_cells(rows):
         lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     lines += [
@@ -160,14 +188,28 @@ def _tested_on(rows: Sequence[Mapping[str, Any]]) -> str:
         "column scores the same classifiers on the same contacts rendered by the simulator, "
         "so its difference to the accuracy column is the sensor's reality gap alone."
     )
-    return text if kinds == {"surrogate"} else text + " Rows on real frames have no sim column."
+    if kinds != {"surrogate"}:
+        text += " Rows on real frames have no sim column."
+    return text + second_unit_note(rows)
+
+
+def second_unit_note(rows: Sequence[Mapping[str, Any]]) -> str:
+    """A sentence on the second-unit column ("" when the table has none)."""
+    units = second_units(rows)
+    if not units:
+        return ""
+    return (
+        " The second-unit column scores the same classifiers on the same test contacts "
+        f"rendered by another unit ({', '.join(units)}), whose images no translator or "
+        "classifier saw before: what a model keeps when it moves between sensor units."
+    )
 
 
 def format_table_for_terminal(
     rows: Sequence[Mapping[str, Any]], title: str = "Results", notes: bool = False
 ) -> str:
     """The same table as plain aligned text, for printing (notes column optional)."""
-    header = list(COLUMNS if notes else COLUMNS[:-1])
+    header = columns(rows) if notes else columns(rows)[:-1]
     body = [c if notes else c[:-1] for c in table_cells(rows)]
     widths = [max(len(h), *(len(r[i]) for r in body)) for i, h in enumerate(header)]
 

@@ -26,7 +26,13 @@ from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageK
 from tactile_bench.report.document import Document
 from tactile_bench.report.figures import per_class_heatmap_png
 from tactile_bench.report.shape import shape_checks
-from tactile_bench.report.table import COLUMNS, PAPER_TABLE, results_markdown, table_cells
+from tactile_bench.report.table import (
+    PAPER_TABLE,
+    columns,
+    results_markdown,
+    second_unit_note,
+    table_cells,
+)
 
 
 class ReportConfig(StageConfig):
@@ -47,6 +53,9 @@ def _row(result: StageResult) -> dict[str, Any]:
         "precision": summary["precision"],
         "recall": summary["recall"],
         "sim_accuracy": summary["test_sim_accuracy"],
+        # the same contacts through a second unit (braille_data second_unit); older runs lack it
+        "second_unit_accuracy": summary.get("second_unit_accuracy"),
+        "second_unit": summary.get("second_unit"),
         "extra": {
             "stage": result.name,
             "seeds": summary["seeds"],
@@ -119,7 +128,7 @@ def _document(
     if config.description:
         doc.paragraph(config.description)
     doc.heading("Classification on the real test set, ours beside the paper")
-    doc.table(list(COLUMNS), table_cells(rows))
+    doc.table(columns(rows), table_cells(rows))
     seeds = sorted({s for r in rows for s in r["extra"]["seeds"]})
     doc.paragraph(
         "Accuracy is micro (% of test images); precision and recall are macro over characters. "
@@ -128,7 +137,7 @@ def _document(
         "translators and the real fine-tuning subsets are fixed by the recipe seed "
         f"({ctx.seed}), so the ± shows classifier training noise only, not the variation "
         "between translator trainings or data draws. The sim column scores the same "
-        "classifiers on the same test contacts rendered by the simulator."
+        "classifiers on the same test contacts rendered by the simulator." + second_unit_note(rows)
     )
     doc.heading("The paper's claims, checked on our numbers")
     doc.table(
@@ -209,6 +218,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
                     "row": r["row"],
                     "paper": vars(PAPER_TABLE[r["row"]]) if r["row"] in PAPER_TABLE else None,
                     **{m: r[m] for m in ("accuracy", "precision", "recall", "sim_accuracy")},
+                    "second_unit_accuracy": r["second_unit_accuracy"],
+                    "second_unit": r["second_unit"],
                     "stage": r["extra"]["stage"],
                     "seeds": r["extra"]["seeds"],
                 }
