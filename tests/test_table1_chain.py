@@ -12,9 +12,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import torch
 import yaml
+from pydantic import ValidationError
 
 from tactile_bench.cli import main
+from tactile_bench.data.braille import SECOND_UNIT_SET, BrailleSet
 from tactile_bench.pipeline.recipe import load_recipe
 from tactile_bench.report.table import PAPER_TABLE
 
@@ -35,6 +38,7 @@ def _shrink(doc: dict[str, Any]) -> dict[str, Any]:
                 n_classifier=48,
                 n_classifier_test=12,
                 image_size=32,
+                second_unit="digit-b",
             )
         elif kind == "ycb_slide_data":
             config.update(n_pairs=24, objects=["005_tomato_soup_can"], image_size=32)
@@ -75,6 +79,9 @@ def test_table_has_every_paper_row_with_mean_and_std(table_run: Path) -> None:
             assert 0.0 <= row[metric]["mean"] <= 1.0
         assert row["seeds"] == [0, 1]
         assert row["paper"]["accuracy"] == PAPER_TABLE[row["row"]].accuracy
+        assert row["second_unit"] == "digit-b"  # every row is also tested on the second unit
+        assert set(row["second_unit_accuracy"]) == {"mean", "std"}
+        assert 0.0 <= row["second_unit_accuracy"]["mean"] <= 1.0
     translators = {s["translator"] for s in table["similarity"]}
     assert translators == {"sim", "lighting_aug", "cgan", "diffusion"}
     timed = {s["name"] for s in table["stages"]}
@@ -87,12 +94,39 @@ def test_report_md_and_self_contained_html(table_run: Path) -> None:
     md = (table_run / "report.md").read_text()
     for heading in ("ours beside the paper", "claims, checked", "Per-class", "Confusion", "time"):
         assert heading in md
+    for text in (md, (table_run / "results.md").read_text()):
+        assert "| accuracy % (ours) | accuracy % on second unit (digit-b) |" in text
     for link in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md):
         assert (table_run / link).is_file(), link  # links resolve from the run directory
     html = (table_run / "report.html").read_text()
     sources = re.findall(r'src="([^"]+)"', html)
     assert sources and all(s.startswith("data:image/png;base64,") for s in sources)
     assert "Tactile diffusion" in html and "cGAN" in html
+
+
+def test_second_unit_renders_the_same_test_contacts_and_is_seen_only_by_classify(
+    table_run: Path,
+) -> None:
+    dirs = _stage_dirs(table_run)
+    test = BrailleSet.load(dirs["braille"] / "classifier_test.npz")
+    unit = BrailleSet.load(dirs["braille"] / f"{SECOND_UNIT_SET}.npz")
+    assert torch.equal(unit.depth, test.depth) and torch.equal(unit.sim, test.sim)
+    assert (unit.real.float() - test.real.float()).abs().mean() > 5  # digit-b's, not digit's
+    run = json.loads((table_run / "run.json").read_text())
+    braille = next(s for s in run["stages"] if s["name"] == "braille")
+    assert braille["config"]["second_unit"] == "digit-b"
+    metrics = json.loads((dirs["braille"] / "_done.json").read_text())["metrics"]
+    assert metrics["content"][SECOND_UNIT_SET] == {"has_sim": True, "has_real": True}
+    summary = json.loads((dirs["classify_real"] / "metrics.json").read_text())["summary"]
+    assert summary["second_unit"] == "digit-b" and summary["second_unit_accuracy"]["mean"] >= 0
+    # no stage can be pointed at it for anything else: no translator or classifier trains on it
+    recipe = load_recipe(REPO / "recipes" / "table1.yaml")
+    for name in ("classify_real", "finetune_diffusion", "translate_sim"):
+        stage = recipe.stage(name)
+        key = "sets" if stage.kind.name == "translate" else "train_set"
+        value = [SECOND_UNIT_SET] if key == "sets" else SECOND_UNIT_SET
+        with pytest.raises(ValidationError, match=key):
+            stage.kind.config_model(**(stage.config.model_dump() | {key: value}))
 
 
 def test_finetuning_rows_start_from_their_base_rows_models(table_run: Path) -> None:
