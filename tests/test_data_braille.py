@@ -162,3 +162,12 @@ def test_second_unit_renders_the_classifier_test_contacts_and_changes_no_other_s
     assert torch.equal(second.depth, first.depth) and torch.equal(second.sim, first.sim)
     assert torch.equal(second.real_background, OtherUnit().background(16).to(torch.uint8))
     assert (second.real.float() - first.real.float()).abs().mean() > 5  # another unit's images
+
+
+def test_an_unset_second_unit_leaves_the_stage_cache_key_as_it_was() -> None:
+    from tactile_bench.pipeline.stages.braille_data import BrailleDataConfig
+
+    assert "second_unit" not in BrailleDataConfig().model_dump(mode="json")
+    assert BrailleDataConfig(second_unit="digit-b").model_dump(mode="json")["second_unit"] == (
+        "digit-b"
+    )
