@@ -20,7 +20,7 @@ from tactile_bench.metrics import estimate_pixel_noise
 from tactile_bench.sensor.background import sim_background
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.testing import TranslatorContract
-from tactile_bench.translators import create_translator, image_to_foreground
+from tactile_bench.translators import create_translator, foreground_to_image, image_to_foreground
 from tactile_bench.translators.registry import load_checkpoint
 
 SIZE = 32
@@ -114,10 +114,13 @@ def test_save_load_gives_identical_images(fitted_blur, tmp_path: Path) -> None:
 
 def test_chunks_do_not_change_the_images(fitted_blur) -> None:
     depth = domes(7, seed=6)
-    whole = fitted_blur.translate_foreground(depth, torch.Generator().manual_seed(1))
+    backgrounds = torch.linspace(60.0, 180.0, 7).view(7, 1, 1, 1).expand(7, 3, SIZE, SIZE)
     chunked = CalibratedTranslator({**FAST, "chunk": 3})
     chunked.load_state_dict(fitted_blur.state_dict())
-    assert torch.equal(whole, chunked.translate_foreground(depth, torch.Generator().manual_seed(1)))
+    fg = fitted_blur.translate_foreground(depth, torch.Generator().manual_seed(1))
+    assert torch.equal(fg, chunked.translate_foreground(depth, torch.Generator().manual_seed(1)))
+    images = chunked.translate(depth, backgrounds, torch.Generator().manual_seed(1))
+    assert torch.equal(images, foreground_to_image(fg, backgrounds))  # each on its own frame
 
 
 def test_unfitted_is_the_plain_simulator() -> None:

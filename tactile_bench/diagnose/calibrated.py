@@ -43,7 +43,7 @@ from tactile_bench.io import atomic_write_json
 from tactile_bench.metrics.noise import estimate_pixel_noise
 from tactile_bench.sensor.background import sim_background
 from tactile_bench.training import FitReport
-from tactile_bench.translators.base import Translator, foreground_to_image, image_to_foreground
+from tactile_bench.translators.base import foreground_to_image, image_to_foreground
 from tactile_bench.translators.sim import SimConfig, SimTranslator
 
 log = logging.getLogger("tactile_bench")
@@ -267,10 +267,18 @@ class CalibratedTranslator(SimTranslator):
         background: torch.Tensor,
         generator: torch.Generator | None = None,
     ) -> torch.Tensor:
-        """The foreground composited on ``background``; unfitted: plain sim on it."""
+        """The foreground composited on ``background`` ((3, S, S) or one a depth), a chunk at
+        a time so only the output is held whole; unfitted: plain sim on it."""
         if not self.fitted:
             return super().translate(depth, background, generator)
-        return Translator.translate(self, depth, background, generator)
+        generator = self._generator(generator)
+        background = background.float().cpu()
+        out = torch.empty(len(depth), 3, *depth.shape[-2:])
+        for i in range(0, len(depth), self.config.chunk):
+            part = slice(i, i + self.config.chunk)
+            bg = background[part] if background.dim() == 4 else background
+            out[part] = foreground_to_image(self._model_foreground(depth[part], generator), bg)
+        return out
 
     # ------------------------------------------------------------------ state
     def _load_from_state_dict(
