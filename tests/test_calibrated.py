@@ -160,6 +160,22 @@ def test_bad_config_is_one_line_naming_the_key(config: dict, key: str) -> None:
     assert "\n" not in message and f"config key {key!r}" in message
 
 
+@pytest.mark.parametrize(
+    ("depth", "foreground", "why"),
+    [
+        (torch.zeros(3, 1, 8, 8), torch.full((3, 3, 8, 8), 0.5), "at least 4 pairs, got 3"),
+        (torch.zeros(6, 1, 8, 8), torch.full((5, 3, 8, 8), 0.5), "does not pair with"),
+        (torch.zeros(6, 1, 8, 8), torch.full((6, 3, 4, 4), 0.5), "does not pair with"),
+        (torch.zeros(6, 8, 8), torch.full((6, 3, 8, 8), 0.5), "must be"),
+    ],
+)
+def test_unfit_pairs_are_one_line(depth, foreground, why: str, tmp_path: Path) -> None:
+    translator = create_translator("calibrated", {"candidates": ["defocus_blur"]})
+    with pytest.raises(TactileBenchError, match=why) as info:
+        translator.fit_pairs(depth, foreground, tmp_path, QUIET)
+    assert "\n" not in str(info.value) and not translator.fitted
+
+
 def test_a_corrupt_record_is_a_load_error(fitted_blur, tmp_path: Path) -> None:
     path = fitted_blur.save(tmp_path / "translator.pt")
     payload = torch.load(path, weights_only=True)

@@ -36,7 +36,7 @@ from pydantic import Field, field_validator
 from tactile_bench.diagnose.candidates import Base, get_candidate, make_base, render
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.diagnose.report import jsonable
-from tactile_bench.diagnose.run import _effects_of, stratified_split
+from tactile_bench.diagnose.run import MIN_PAIRS, _effects_of, stratified_split
 from tactile_bench.diagnose.which import explain_gap
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json
@@ -95,6 +95,25 @@ def area_strata(depth: torch.Tensor, strata: int) -> list[str]:
     return [f"area{int(b)}" for b in bins]
 
 
+def _check_pairs(depth: torch.Tensor, foreground: torch.Tensor) -> None:
+    """Depth (N, 1, S, S) and foreground (N, 3, S, S) of one N and S, at least ``MIN_PAIRS``."""
+    n, size = len(depth), tuple(depth.shape[-2:])
+    if depth.dim() != 4 or depth.shape[1] != 1 or foreground.dim() != 4:
+        raise TactileBenchError(
+            f"translator 'calibrated': depth must be (N, 1, S, S) and foreground (N, 3, S, S), "
+            f"got {tuple(depth.shape)} and {tuple(foreground.shape)}"
+        )
+    if foreground.shape != (n, 3, *size):
+        raise TactileBenchError(
+            f"translator 'calibrated': foreground {tuple(foreground.shape)} does not pair with "
+            f"depth {tuple(depth.shape)}"
+        )
+    if n < MIN_PAIRS:
+        raise TactileBenchError(
+            f"translator 'calibrated': the diagnosis needs at least {MIN_PAIRS} pairs, got {n}"
+        )
+
+
 def _text(buffer: torch.Tensor) -> str:
     return bytes(buffer.tolist()).decode("utf-8")
 
@@ -139,6 +158,7 @@ class CalibratedTranslator(SimTranslator):
         """
         start = time.perf_counter()
         config: CalibratedConfig = self.config
+        _check_pairs(depth, foreground)
         depth, foreground = depth.float().clamp(min=0), foreground.float()
         size = int(depth.shape[-1])
         background = sim_background(size)
