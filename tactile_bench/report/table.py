@@ -46,6 +46,12 @@ PAPER_TABLE: dict[str, PaperRow] = {
     )
 }
 
+#: rows of ours that the paper does not have: (training data source, % real fine-tuning)
+EXTRA_ROWS: dict[str, tuple[str, str]] = {
+    "calibrated": ("Calibrated sim (gap diagnosis fitted on 20% real, no network)", "-"),
+    "sim_aug_image": ("Sim + image aug. (kornia, background drawn alike)", "-"),
+}
+
 COLUMNS = (
     "training data source",
     "% real fine-tuning",
@@ -132,8 +138,9 @@ def table_cells(rows: Sequence[Mapping[str, Any]]) -> list[list[str]]:
     for rid in ids:
         ours = by_id.get(rid, {})
         paper = PAPER_TABLE.get(rid)
-        source = str(ours.get("source") or (paper.source if paper else rid))
-        finetune = str(ours.get("finetune") or (paper.finetune if paper else "-"))
+        extra = EXTRA_ROWS.get(rid, (rid, "-"))
+        source = str(ours.get("source") or (paper.source if paper else extra[0]))
+        finetune = str(ours.get("finetune") or (paper.finetune if paper else extra[1]))
         cells.append(
             [
                 source,
