@@ -153,6 +153,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         "fit_pairs": len(depth),
         "initialised_from": init_from,
         "divergence": translator.fit_diagnostics().get("divergence"),
+        # what the fit found (e.g. calibrated's selected effects and fit seconds); {}: nothing
+        "fit": translator.fit_diagnostics(),
         # the precision the fit trained in (None: nothing was trained)
         "compute_precision": translator.training_precision(ctx.trainer) if report else None,
     }
