@@ -1,0 +1,223 @@
+"""A/B experiments behind docs/results/table1.md, on a finished ``table1.yaml`` run directory.
+
+Each experiment changes one thing against the table's own protocol and prints one JSON row
+a condition (mean and per-seed accuracy on the real classifier test set):
+
+    python scripts/table1_ab.py finetune RUN_DIR   # fraction vs optimiser steps vs yaw vs lr
+    python scripts/table1_ab.py cgan RUN_DIR       # what in the cGAN images fails on real
+    python scripts/table1_ab.py rotated RUN_DIR    # every row's models on the yaw-to-90 test set
+
+``finetune`` starts from the run's ``classify_sim`` models and fine-tunes them as the classify
+stage does, with the classifier settings of table1.yaml's fine-tuning rows (``--lr`` sets
+the base lr the conditions vary around). ``cgan`` trains the base classifier on the run's
+cGAN images. Both write nothing into the run directory (their scratch goes to ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tactile_bench.classify.train import (
+    ClassifierConfig,
+    evaluate,
+    recalibrate_batchnorm,
+    train_classifier,
+)
+from tactile_bench.data.braille import BrailleSet
+from tactile_bench.data.datamodule import stratified_split, stratified_subset
+from tactile_bench.metrics.noise import estimate_pixel_noise
+from tactile_bench.pipeline.stages.classify import load_classifier
+from tactile_bench.translators import image_to_foreground
+
+SEEDS = (0, 1, 2)
+N_CLASSES = 27
+QUIET = {"enable_progress_bar": False, "enable_checkpointing": False}
+
+
+def _stage(run: Path, name: str) -> Path:
+    found = sorted(run.glob(f"{name}-*"))
+    if not found:
+        raise SystemExit(f"error: {run}: no stage directory {name}-*")
+    return found[0]
+
+
+def _report(name: str, accs: list[float], **extra: object) -> None:
+    a = np.asarray(accs)
+    row = {"cond": name, "mean": round(float(a.mean()), 2), "std": round(float(a.std(ddof=1)), 2)}
+    print(json.dumps(row | {"per_seed": [round(x, 2) for x in accs]} | extra), flush=True)
+
+
+def _accuracy(model: torch.nn.Module, fg: torch.Tensor, labels: torch.Tensor) -> float:
+    return 100.0 * evaluate(model, fg, labels, num_classes=N_CLASSES)["accuracy"]
+
+
+def finetune(run: Path, out: Path, lr: float) -> None:
+    """Fine-tuning: does the fall with the real fraction follow the steps, the yaws or the lr?"""
+    braille = _stage(run, "braille")
+    base = _stage(run, "classify_sim")
+    pool = BrailleSet.load(braille / "finetune.npz")
+    test = BrailleSet.load(braille / "classifier_test.npz")
+    test_fg = test.foreground("real")
+    upright = pool.subset(torch.nonzero(pool.poses.yaw_deg.abs() < 1).squeeze(1))
+
+    def tune(name: str, subset: BrailleSet, lr: float, epochs: int = 4, steps: int = 0) -> None:
+        accs = []
+        for seed in SEEDS:
+            cfg = ClassifierConfig(
+                width=16, blocks=(1, 1, 1, 1), batch_size=20, lr=lr, epochs=epochs, seed=seed
+            )
+            kwargs = QUIET | ({"max_epochs": -1, "max_steps": steps} if steps else {})
+            model = train_classifier(
+                subset.foreground("real"),
+                subset.labels,
+                cfg,
+                out / f"{name}_seed{seed}",
+                loggers=[],
+                trainer_kwargs=kwargs,
+                num_classes=N_CLASSES,
+                init=load_classifier(base / f"model_seed{seed}.pt"),
+            )
+            accs.append(_accuracy(model, test_fg, test.labels))
+        _report(name, accs, n=len(subset), lr=lr, epochs=epochs, steps=steps or None)
+
+    def fraction(pairs: BrailleSet, f: float) -> BrailleSet:
+        return pairs.subset(stratified_subset(pairs.labels, f, 0))  # the recipe seed, 0
+
+    steps_at_20 = -(-len(fraction(pool, 0.2)) // 20) * 4  # the 20% row's optimiser steps
+    for f in (0.2, 0.8, 1.0):
+        tune(f"all yaws {f:.0%}", fraction(pool, f), lr)
+    for f in (0.2, 0.8, 1.0):
+        tune(f"all yaws {f:.0%}, {steps_at_20} steps", fraction(pool, f), lr, steps=steps_at_20)
+    for f in (0.2, 0.8, 1.0):
+        tune(f"upright only {f:.0%}", fraction(upright, f), lr)
+    other = 1e-3 if lr < 1e-3 else 1e-4
+    for f in (0.2, 0.8, 1.0):
+        tune(f"all yaws {f:.0%}, lr {other:g}", fraction(pool, f), other)
+
+
+def _images(run: Path, stage: str) -> tuple[torch.Tensor, torch.Tensor]:
+    arrays = np.load(_stage(run, stage) / "classifier.npz")
+    images = torch.from_numpy(arrays["images"]).float()
+    background = torch.from_numpy(arrays["background"]).float()
+    return image_to_foreground(images, background), torch.from_numpy(arrays["labels"])
+
+
+def cgan(run: Path, out: Path) -> None:
+    """cGAN row: train the base classifier on its images as they are and with one change."""
+    braille = _stage(run, "braille")
+    test = BrailleSet.load(braille / "classifier_test.npz")
+    test_fg = test.foreground("real")
+    pool_fg = BrailleSet.load(braille / "finetune.npz").foreground("real")
+    fg, labels = _images(run, "translate_cgan")
+    real_fg = BrailleSet.load(braille / "classifier.npz").foreground("real")
+    contact = (BrailleSet.load(braille / "classifier.npz").depth > 0).expand(-1, 3, -1, -1)
+
+    def contrast(x: torch.Tensor) -> float:
+        return float((x - 0.5)[contact].abs().mean() * 255)
+
+    def nyquist_power(x: torch.Tensor) -> float:
+        spectrum = torch.fft.fft2((x - x.mean((-2, -1), keepdim=True)) * 255).abs().pow(2)
+        mid = x.shape[-1] // 2
+        return float(spectrum[..., mid, :].mean() + spectrum[..., :, mid].mean()) / x[0, 0].numel()
+
+    print(
+        json.dumps(
+            {
+                "contact contrast (grey levels)": {"cgan": contrast(fg), "real": contrast(real_fg)},
+                "power at the Nyquist rows and columns": {
+                    "cgan": nyquist_power(fg[::10]),
+                    "real": nyquist_power(real_fg[::10]),
+                },
+                "pixel noise (foreground units)": {
+                    "cgan": estimate_pixel_noise(fg).tolist(),
+                    "real": estimate_pixel_noise(pool_fg).tolist(),
+                },
+            }
+        ),
+        flush=True,
+    )
+
+    def notch(x: torch.Tensor) -> torch.Tensor:  # only the period-2 (checkerboard) content
+        spectrum = torch.fft.fft2(x)
+        mid = x.shape[-1] // 2
+        spectrum[..., mid, :] = 0
+        spectrum[..., :, mid] = 0
+        return torch.fft.ifft2(spectrum).real
+
+    def rescaled(x: torch.Tensor) -> torch.Tensor:  # contact contrast scaled to real's
+        return 0.5 + (x - 0.5) * (contrast(real_fg) / contrast(fg))
+
+    conditions: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
+        "cgan as translated": lambda x: x,
+        "cgan, checkerboard notched out": notch,
+        "cgan, contrast scaled to real": rescaled,
+    }
+    for name, change in conditions.items():
+        train_fg = change(fg)
+        accs, adapted = [], []
+        for seed in SEEDS:
+            keep, _ = stratified_split(labels, 0.1, seed)
+            cfg = ClassifierConfig(
+                width=16, blocks=(1, 1, 1, 1), batch_size=64, lr=0.002, epochs=4, seed=seed
+            )
+            model = train_classifier(
+                train_fg[keep],
+                labels[keep],
+                cfg,
+                out / f"{name}_seed{seed}",
+                loggers=[],
+                trainer_kwargs=QUIET,
+                num_classes=N_CLASSES,
+            )
+            accs.append(_accuracy(model, test_fg, test.labels))
+            # BatchNorm statistics from unlabeled real frames (the fine-tuning pool): how much
+            # of the failure is a shift of feature statistics
+            model = copy.deepcopy(model)
+            recalibrate_batchnorm(model, pool_fg[torch.randperm(len(pool_fg))[:1024]])
+            adapted.append(_accuracy(model, test_fg, test.labels))
+        _report(name, accs, bn_on_real_pool=round(float(np.mean(adapted)), 2))
+
+
+def rotated(run: Path) -> None:
+    """Every classify stage's models on the paired test set (yaws to 90 deg) and its yaw-0 part."""
+    test = BrailleSet.load(_stage(run, "braille") / "test.npz")
+    fg = test.foreground("real")
+    up = test.poses.yaw_deg.abs() < 1
+    for stage in sorted(p.name.rsplit("-", 1)[0] for p in run.glob("classify_*-*")):
+        models = [load_classifier(_stage(run, stage) / f"model_seed{s}.pt") for s in SEEDS]
+        _report(
+            stage,
+            [_accuracy(m, fg, test.labels) for m in models],
+            upright_part=round(
+                float(np.mean([_accuracy(m, fg[up], test.labels[up]) for m in models])), 2
+            ),
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("experiment", choices=("finetune", "cgan", "rotated"))
+    parser.add_argument("run_dir", type=Path, help="a finished table1.yaml run directory")
+    parser.add_argument("--out", type=Path, default=None, help="scratch folder (default: temp)")
+    parser.add_argument("--lr", type=float, default=1e-4, help="fine-tuning lr (table1.yaml's)")
+    ns = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = ns.out or Path(tmp)
+        experiments: dict[str, Callable[[], None]] = {
+            "finetune": lambda: finetune(ns.run_dir, out, ns.lr),
+            "cgan": lambda: cgan(ns.run_dir, out),
+            "rotated": lambda: rotated(ns.run_dir),
+        }
+        experiments[ns.experiment]()
+
+
+if __name__ == "__main__":
+    main()
