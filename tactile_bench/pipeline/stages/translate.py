@@ -1,7 +1,8 @@
 """Stage ``translate``: turn braille depth into images with a translator, and score the test set.
 
 The translator is either a fitted one (input ``translator``, a ``fit_translator`` stage)
-or a fresh registered one named in the config (``sim``, ``lighting_aug``: nothing to fit).
+or a fresh registered one named in the config (``sim``; ``lighting_aug`` unfitted, with the
+sim's noise).
 ``translator_config`` on a fitted translator overrides inference settings only (e.g. the
 diffusion sampler and its number of steps).
 """
