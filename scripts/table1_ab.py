@@ -117,8 +117,9 @@ def cgan(run: Path, out: Path) -> None:
     test_fg = test.foreground("real")
     pool_fg = BrailleSet.load(braille / "finetune.npz").foreground("real")
     fg, labels = _images(run, "translate_cgan")
-    real_fg = BrailleSet.load(braille / "classifier.npz").foreground("real")
-    contact = (BrailleSet.load(braille / "classifier.npz").depth > 0).expand(-1, 3, -1, -1)
+    classifier_set = BrailleSet.load(braille / "classifier.npz")
+    real_fg = classifier_set.foreground("real")
+    contact = (classifier_set.depth > 0).expand(-1, 3, -1, -1)
 
     def contrast(x: torch.Tensor) -> float:
         return float((x - 0.5)[contact].abs().mean() * 255)

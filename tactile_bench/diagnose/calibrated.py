@@ -36,7 +36,7 @@ from pydantic import Field, field_validator
 from tactile_bench.diagnose.candidates import Base, get_candidate, make_base, render
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.diagnose.report import jsonable
-from tactile_bench.diagnose.run import MIN_PAIRS, _effects_of, stratified_split
+from tactile_bench.diagnose.run import MIN_PAIRS, selected_effects, stratified_split
 from tactile_bench.diagnose.which import explain_gap
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json
@@ -174,7 +174,7 @@ class CalibratedTranslator(SimTranslator):
         which = explain_gap(
             data, fit_idx, held_idx, config.candidates, seed=config.seed, progress=progress
         )
-        effects = _effects_of(which)
+        effects = selected_effects(which)
         # what render needs later: the response lookup's fit pairs and the sim optics model,
         # exactly as the diagnosis built them (make_base with the fit split)
         fit_base = make_base(data, fit_idx, lookup_from=fit_idx, lookup_cache={})

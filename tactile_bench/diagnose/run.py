@@ -96,7 +96,7 @@ def check_candidates(names: Sequence[str] | None, key: str = "--candidates") -> 
         raise TactileBenchError(f"{key}: give at least one candidate effect")
 
 
-def _effects_of(which: Any) -> dict[str, dict[str, float]]:
+def selected_effects(which: Any) -> dict[str, dict[str, float]]:
     """The selected effects' parameters: the final (e.g. jointly refitted) set when the
     "which" step reports one, else each ranking row's own fit."""
     final = getattr(which, "selected_params", None)
@@ -136,7 +136,7 @@ def diagnose(
         data, fit_idx, held_idx, candidates=candidates, seed=seed, progress=progress
     )
     timing["which"] = time.perf_counter() - t
-    effects = _effects_of(which)
+    effects = selected_effects(which)
     log.info("which: %.1f s; selected %s", timing["which"], list(effects) or "nothing")
 
     t = time.perf_counter()

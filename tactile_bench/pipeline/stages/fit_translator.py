@@ -148,13 +148,14 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         init_from = config.init_checkpoint
     elif previous is not None:
         init_from = ctx.inputs["init"][0].name
+    diagnostics = translator.fit_diagnostics()
     metrics: dict[str, Any] = {
         "translator": config.translator,
         "fit_pairs": len(depth),
         "initialised_from": init_from,
-        "divergence": translator.fit_diagnostics().get("divergence"),
+        "divergence": diagnostics.get("divergence"),
         # what the fit found (e.g. calibrated's selected effects and fit seconds); {}: nothing
-        "fit": translator.fit_diagnostics(),
+        "fit": diagnostics,
         # the precision the fit trained in (None: nothing was trained)
         "compute_precision": translator.training_precision(ctx.trainer) if report else None,
     }
