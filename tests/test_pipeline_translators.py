@@ -210,3 +210,40 @@ def test_parallel_seeds_train_the_models_sequential_training_does(
         assert (out[2] / f"seed{seed}" / "finetune" / "checkpoints" / "last.ckpt").exists()
     scores = [json.loads((d / "metrics.json").read_text())["per_seed"] for d in out.values()]
     assert [s["test"]["accuracy"] for s in scores[0]] == [s["test"]["accuracy"] for s in scores[1]]
+
+
+TWO_FITS = """
+name: two_fits
+stages:
+  - name: braille
+    kind: braille_data
+    config: {chars: AB, n_finetune: 20, n_test: 16, n_classifier: 40}
+  - name: first
+    kind: fit_translator
+    inputs: {braille: braille}
+    config: {translator: colour_match, translator_config: {max_steps: 2, batch_size: 8}}
+  - name: second
+    kind: fit_translator
+    inputs: {braille: braille}
+    config: {translator: colour_match, translator_config: {max_steps: 3, batch_size: 8}}
+"""
+
+
+def test_each_fit_logs_to_its_own_wandb_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """wandb keeps one run a process: a stage that leaves its run open makes the next
+    stage's fit log into it (the second stage then has no run of its own)."""
+    pytest.importorskip("wandb")
+    monkeypatch.delenv("TACTILE_BENCH_NO_WANDB", raising=False)
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_BASE_URL", "http://127.0.0.1:9")  # would fail if it went online
+    path = tmp_path / "two.yaml"
+    path.write_text(TWO_FITS)
+    run_dir = tmp_path / "run"
+    assert main(["fit", str(path), "--run-dir", str(run_dir), "--no-progress"]) == 0
+    run = json.loads((run_dir / "run.json").read_text())
+    dirs = {s["name"]: run_dir / s["directory"] for s in run["stages"]}
+    runs = {name: list((dirs[name] / "wandb").glob("offline-run-*")) for name in ("first", "second")}
+    assert len(runs["first"]) == 1 and len(runs["second"]) == 1
+    assert runs["first"][0].name != runs["second"][0].name

@@ -22,7 +22,7 @@ from tactile_bench.data.pairs import load_pairs
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json
 from tactile_bench.metrics.image import ssim_mse
-from tactile_bench.pipeline.loggers import make_loggers
+from tactile_bench.pipeline.loggers import finish_loggers, make_loggers
 from tactile_bench.pipeline.stages.base import (
     StageConfig,
     StageContext,
@@ -134,13 +134,11 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             )
         translator.load_state_dict(previous.state_dict())
     depth, foreground, test_depth, test_real, test_bg = _pairs(ctx, config.fraction)
-    report = translator.fit_pairs(
-        depth,
-        foreground,
-        ctx.directory,
-        ctx.trainer,
-        loggers=make_loggers(ctx.directory, f"{ctx.name}-{config.translator}"),
-    )
+    loggers = make_loggers(ctx.directory, f"{ctx.name}-{config.translator}")
+    try:
+        report = translator.fit_pairs(depth, foreground, ctx.directory, ctx.trainer, loggers=loggers)
+    finally:  # wandb keeps one run a process: the next stage's fit would log into this one
+        finish_loggers(loggers)
     translator.save(ctx.directory / "translator.pt")
 
     init_from = None
