@@ -244,6 +244,8 @@ def test_each_fit_logs_to_its_own_wandb_run(
     assert main(["fit", str(path), "--run-dir", str(run_dir), "--no-progress"]) == 0
     run = json.loads((run_dir / "run.json").read_text())
     dirs = {s["name"]: run_dir / s["directory"] for s in run["stages"]}
-    runs = {name: list((dirs[name] / "wandb").glob("offline-run-*")) for name in ("first", "second")}
+    runs = {
+        name: list((dirs[name] / "wandb").glob("offline-run-*")) for name in ("first", "second")
+    }
     assert len(runs["first"]) == 1 and len(runs["second"]) == 1
     assert runs["first"][0].name != runs["second"][0].name

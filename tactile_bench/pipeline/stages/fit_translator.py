@@ -136,7 +136,9 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     depth, foreground, test_depth, test_real, test_bg = _pairs(ctx, config.fraction)
     loggers = make_loggers(ctx.directory, f"{ctx.name}-{config.translator}")
     try:
-        report = translator.fit_pairs(depth, foreground, ctx.directory, ctx.trainer, loggers=loggers)
+        report = translator.fit_pairs(
+            depth, foreground, ctx.directory, ctx.trainer, loggers=loggers
+        )
     finally:  # wandb keeps one run a process: the next stage's fit would log into this one
         finish_loggers(loggers)
     translator.save(ctx.directory / "translator.pt")
