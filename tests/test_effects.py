@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, EffectContext, OpticalScene, get_effect
-from tactile_bench.effects.base import surface_gradient
 from tactile_bench.effects.camera import jpeg_approx
+from tactile_bench.effects.kernels import surface_gradient
 from tactile_bench.effects.optics import fitted_response_image, new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
@@ -196,7 +196,7 @@ def test_jpeg_approximation_close_to_a_real_encoder() -> None:
 def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
     import math
 
-    from tactile_bench.effects.base import _conv1d_slices, gaussian_kernel1d
+    from tactile_bench.effects.kernels import _conv1d_slices, gaussian_kernel1d
 
     if sx > 4 and sy > 4:  # the wide path: 2x area down, blur, bilinear up
         small = torch.nn.functional.avg_pool2d(x, 2)
@@ -209,7 +209,7 @@ def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
 
 @pytest.mark.parametrize(("sx", "sy"), [(0.43, 0.32), (1.6, 1.2), (6.4, 4.8), (17.8, 13.3)])
 def test_matrix_blur_matches_convolution(sx: float, sy: float) -> None:
-    from tactile_bench.effects.base import gaussian_blur
+    from tactile_bench.effects.kernels import gaussian_blur
 
     x = torch.randn(3, 2, 128, 96, generator=_gen())
     ours = gaussian_blur(x, torch.tensor(sx), torch.tensor(sy))
@@ -222,7 +222,7 @@ def test_matrix_blur_matches_convolution(sx: float, sy: float) -> None:
 
 @pytest.mark.parametrize("smear_mm", [0.1, 1.2])
 def test_shear_smear_matches_shifted_samples(smear_mm: float) -> None:
-    from tactile_bench.effects.base import shift_mm
+    from tactile_bench.effects.kernels import shift_mm
 
     effect, x = get_effect("shear_smear"), _height(4, 64)
     ours = effect.apply(x, {"smear_mm": smear_mm}, _gen(3), CTX)
@@ -233,7 +233,7 @@ def test_shear_smear_matches_shifted_samples(smear_mm: float) -> None:
 
 
 def test_elastic_spread_matches_masked_pyramid() -> None:
-    from tactile_bench.effects.base import gaussian_blur
+    from tactile_bench.effects.kernels import gaussian_blur
 
     x = _height(3, 96)
     ours = get_effect("elastic_spread").apply(x, None, None, CTX)

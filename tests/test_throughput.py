@@ -11,12 +11,12 @@ import torch.nn.functional as F
 
 from tactile_bench.bench.throughput import braille_throughput, format_report, object_throughput
 from tactile_bench.effects import EFFECTS, EffectContext
-from tactile_bench.effects.base import blur_matrices, gaussian_blur
 from tactile_bench.effects.camera import jpeg_approx
+from tactile_bench.effects.kernels import area_pool, blur_matrices, gaussian_blur
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.geometry.braille import BrailleSpec, braille_mesh
 from tactile_bench.geometry.contacts import classifier_protocol
-from tactile_bench.sensor.depth import GelSpec, _affine_grid, _sample_maps, area_pool, render_height
+from tactile_bench.sensor.depth import GelSpec, _affine_grid, _sample_maps, render_height
 from tactile_bench.sensor.heightfield import build_bank, raycast_heights
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer, embree_available
 from tactile_bench.sensor.optics import SimOptics
@@ -138,7 +138,7 @@ def test_factored_blur_equals_its_matrices(sigma: tuple[float, float]) -> None:
 )
 def test_narrow_blur_by_taps_equals_the_matrices(shape: tuple, sigma: tuple) -> None:
     """Narrow blurs (radius <= 5 px) run as shifted adds: the same blur as the matrices."""
-    from tactile_bench.effects.base import _cached_small_taps
+    from tactile_bench.effects.kernels import _cached_small_taps
 
     assert _cached_small_taps(shape[2], shape[3], *sigma, 64) is not None  # the taps path
     x = torch.rand(*shape) * 255
@@ -308,7 +308,7 @@ def test_skip_random_replays_exactly_what_render_draws(bank, profile: str) -> No
 
 
 def test_every_stochastic_effect_declares_its_draws() -> None:
-    from tactile_bench.effects.base import replay_draws
+    from tactile_bench.effects.draws import replay_draws
     from tactile_bench.geometry.contacts import Poses
 
     n, hw, image_hw = 5, (24, 24), (12, 12)

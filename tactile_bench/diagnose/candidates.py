@@ -79,8 +79,9 @@ import torch.nn.functional as F
 
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, Effect, EffectContext
-from tactile_bench.effects.base import ParamValue, gaussian_blur
+from tactile_bench.effects.base import ParamValue
 from tactile_bench.effects.camera import libjpeg
+from tactile_bench.effects.kernels import gaussian_blur
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec

@@ -31,7 +31,7 @@ from tactile_bench.diagnose.candidates import (
     get_candidate,
     render,
 )
-from tactile_bench.effects.base import gaussian_blur
+from tactile_bench.effects.kernels import gaussian_blur
 
 GAP_METRIC = (
     "structure + texture, grey level^2 (0..255): MSE of the images low-passed to ~1 px "

@@ -25,13 +25,11 @@ from tactile_bench.effects.base import (
     Param,
     ParamValue,
     as_tensor,
-    gaussian_blur,
     per_sub_batch,
-    pixel_grid,
-    randn,
-    resize_matrix,
     scalar,
 )
+from tactile_bench.effects.draws import randn
+from tactile_bench.effects.kernels import gaussian_blur, pixel_grid, resize_matrix
 
 
 class DefocusBlur(Effect):

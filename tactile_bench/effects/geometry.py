@@ -21,12 +21,11 @@ from tactile_bench.effects.base import (
     Param,
     ParamValue,
     as_tensor,
-    gaussian_blur,
     per_sub_batch,
-    pixel_grid,
-    randn,
     scalar,
 )
+from tactile_bench.effects.draws import randn
+from tactile_bench.effects.kernels import gaussian_blur, pixel_grid
 
 
 class SurfaceTexture(Effect):

@@ -30,10 +30,9 @@ from tactile_bench.effects.base import (
     ParamValue,
     as_tensor,
     per_sub_batch,
-    pixel_grid,
     scalar,
-    surface_gradient,
 )
+from tactile_bench.effects.kernels import pixel_grid, surface_gradient
 from tactile_bench.errors import TactileBenchError
 
 # Depth (mm) over which a contact's flat-slope colour offset fades in.

@@ -8,15 +8,8 @@ from typing import Any
 
 import torch
 
-from tactile_bench.effects.base import (
-    Draw,
-    Effect,
-    EffectContext,
-    Param,
-    ParamValue,
-    as_tensor,
-    randn,
-)
+from tactile_bench.effects.base import Draw, Effect, EffectContext, Param, ParamValue, as_tensor
+from tactile_bench.effects.draws import randn
 
 
 def _with(poses: Any, **changes: torch.Tensor) -> Any:

@@ -35,7 +35,9 @@ import torch
 import torch.nn.functional as F
 
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, get_effect
-from tactile_bench.effects.base import EffectContext, ParamValue, area_pool, replay_draws
+from tactile_bench.effects.base import EffectContext, ParamValue
+from tactile_bench.effects.draws import replay_draws
+from tactile_bench.effects.kernels import area_pool
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
