@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 import torch
 
-from tactile_bench.effects import EFFECT_ORDER, EFFECTS, EffectContext, OpticalScene, get_effect
+from tactile_bench.effects import (
+    EFFECT_ORDER,
+    EFFECTS,
+    IMAGE_FORMATION,
+    EffectContext,
+    OpticalScene,
+    get_effect,
+)
 from tactile_bench.effects.camera import jpeg_approx
 from tactile_bench.effects.kernels import surface_gradient
 from tactile_bench.effects.optics import fitted_response_image, new_scene
@@ -33,8 +40,8 @@ def _height(n: int = 3, size: int = 48) -> torch.Tensor:
     return torch.stack(out)[:, None].float()
 
 
-def _input(stage: str, n: int = 3):
-    if stage == "pose":
+def _input(acts_on: str, n: int = 3):
+    if acts_on == "pose":
         return Poses(
             labels=torch.arange(n),
             x_mm=torch.linspace(-1, 1, n),
@@ -42,9 +49,9 @@ def _input(stage: str, n: int = 3):
             yaw_deg=torch.linspace(-20, 20, n),
             press_mm=torch.full((n,), 0.5),
         )
-    if stage == "geometry":
+    if acts_on == "geometry":
         return _height(n)
-    if stage == "optics":
+    if acts_on == "optics":
         surface = torch.nn.functional.adaptive_avg_pool2d(_height(n).clamp(min=0), S)
         gx, gy = surface_gradient(surface, CTX)
         delta = fitted_response_image(gx[:, 0], gy[:, 0], (surface[:, 0] > 0).float())
@@ -75,7 +82,7 @@ ALL = list(EFFECT_ORDER)
 
 def test_registry_is_explicit_and_complete() -> None:
     assert len(EFFECTS) >= 15
-    assert {e.stage for e in EFFECTS.values()} == {"pose", "geometry", "optics", "camera"}
+    assert {e.acts_on for e in EFFECTS.values()} == set(IMAGE_FORMATION)
     for name, effect in EFFECTS.items():
         assert effect.name == name and effect.description and effect.params
         for p in effect.params:
@@ -87,7 +94,7 @@ def test_registry_is_explicit_and_complete() -> None:
 @pytest.mark.parametrize("name", ALL)
 def test_changes_when_on_and_identity_at_neutral(name: str) -> None:
     effect = get_effect(name)
-    x = _input(effect.stage)
+    x = _input(effect.acts_on)
     ref = _as_tensor(x)
     on = _as_tensor(effect.apply(x, None, _gen(), CTX))
     assert on.shape == ref.shape
@@ -104,7 +111,7 @@ def test_changes_when_on_and_identity_at_neutral(name: str) -> None:
 @pytest.mark.parametrize("name", ALL)
 def test_seeded_determinism(name: str) -> None:
     effect = get_effect(name)
-    x = _input(effect.stage)
+    x = _input(effect.acts_on)
     a = _as_tensor(effect.apply(x, None, _gen(1), CTX))
     b = _as_tensor(effect.apply(x, None, _gen(1), CTX))
     assert torch.equal(a, b)
@@ -144,7 +151,7 @@ def test_range_bounds_are_valid_values_in_any_precision(name: str) -> None:
 @pytest.mark.parametrize("name", [n for n in ALL if not EFFECTS[n].stochastic])
 def test_batched_equals_per_image(name: str) -> None:
     effect = get_effect(name)
-    x = _input(effect.stage, n=3)
+    x = _input(effect.acts_on, n=3)
     batched = _as_tensor(effect.apply(x, None, _gen(), CTX))
     singles = []
     for i in range(3):
@@ -159,7 +166,7 @@ def test_batched_equals_per_image(name: str) -> None:
 @pytest.mark.parametrize("name", [n for n in ALL if EFFECTS[n].differentiable])
 def test_gradients_flow_to_declared_params(name: str) -> None:
     effect = get_effect(name)
-    x = _input(effect.stage)
+    x = _input(effect.acts_on)
     params = {k: torch.tensor(float(v), requires_grad=True) for k, v in effect.defaults().items()}
     out = _as_tensor(effect.apply(x, params, _gen(), CTX))
     weights = torch.linspace(0.5, 1.5, out.numel()).reshape(out.shape)

@@ -20,7 +20,7 @@ from tactile_bench.sensor.depth import GelSpec, _affine_grid, _sample_maps, rend
 from tactile_bench.sensor.heightfield import build_bank, raycast_heights
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer, embree_available
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.timing import StageTimer, stage
+from tactile_bench.sensor.timing import SpanTimer, timed_span
 
 CHARS = ("A", "Y", "#")
 needs_embree = pytest.mark.skipif(not embree_available(), reason="embreex not installed")
@@ -34,36 +34,36 @@ def bank():
 def _check_report(report: dict, n: int) -> None:
     assert report["n"] == n and report["wall_s"] > 0 and report["cpu_s"] > 0
     assert report["per_s"] == pytest.approx(n / report["wall_s"])
-    assert set(report["stages"]) == set(report["stages_cpu"])
-    assert all(v >= 0 for v in report["stages"].values())
-    # exclusive stage times plus the untimed rest add up to the wall time
-    assert sum(report["stages"].values()) == pytest.approx(report["wall_s"], rel=0.05)
+    assert set(report["spans"]) == set(report["spans_cpu"])
+    assert all(v >= 0 for v in report["spans"].values())
+    # exclusive span times plus the untimed rest add up to the wall time
+    assert sum(report["spans"].values()) == pytest.approx(report["wall_s"], rel=0.05)
     assert len(report["load"]) == 3 and report["threads"] == torch.get_num_threads()
 
 
-def test_braille_throughput_reports_every_stage() -> None:
+def test_braille_throughput_reports_every_span() -> None:
     report = braille_throughput(8, seed=1)
     _check_report(report, 8)
-    stages = report["stages"]
+    spans = report["spans"]
     for name in ("bank", "sim.height", "sim.depth", "sim.optics", "real.height", "io", "uint8"):
-        assert stages[name] > 0, name
+        assert spans[name] > 0, name
     for effect in EFFECTS.values():  # the default profile has every effect on
-        assert f"real.{effect.stage}.{effect.name}" in stages
+        assert f"real.{effect.acts_on}.{effect.name}" in spans
     text = format_report("braille", report)
     assert text.startswith("braille: 8 in") and "sim.optics" in text
 
 
-def test_object_throughput_reports_every_stage() -> None:
+def test_object_throughput_reports_every_span() -> None:
     report = object_throughput(10, objects=("042_adjustable_wrench",), workers=1)
     assert report["n"] + report["frames_dropped"] == 10
     _check_report(report, report["n"])
     for name in ("objects", "surface", "trajectories", "mesh_bvh", "height.rays", "settle"):
-        assert report["stages"][name] > 0, name
+        assert report["spans"][name] > 0, name
     with pytest.raises(Exception, match="n must be"):
         object_throughput(3)
 
 
-def test_stage_timer_is_exclusive_and_off_by_default(monkeypatch) -> None:
+def test_span_timer_is_exclusive_and_off_by_default(monkeypatch) -> None:
     import types
 
     from tactile_bench.sensor import timing
@@ -71,12 +71,12 @@ def test_stage_timer_is_exclusive_and_off_by_default(monkeypatch) -> None:
     ticks = iter(range(100))  # a fake clock: every reading is one second later
     fake = types.SimpleNamespace(perf_counter=lambda: next(ticks), thread_time=lambda: 0.0)
     monkeypatch.setattr(timing, "time", fake)
-    with stage("nobody.listens"):  # no timer active: nothing recorded, the clock not read
+    with timed_span("nobody.listens"):  # no timer active: nothing recorded, the clock not read
         pass
-    with StageTimer() as timer, stage("outer"):  # reads 0 ... 5
-        with stage("inner"):  # reads 1 ... 2
+    with SpanTimer() as timer, timed_span("outer"):  # reads 0 ... 5
+        with timed_span("inner"):  # reads 1 ... 2
             pass
-        with stage("inner"):  # reads 3 ... 4
+        with timed_span("inner"):  # reads 3 ... 4
             pass
     assert dict(timer.wall) == {"inner": 2.0, "outer": 3.0}  # 5 s in all, 2 of them inside
 
@@ -324,7 +324,7 @@ def test_every_stochastic_effect_declares_its_draws() -> None:
             assert effect.draws(n, hw, image_hw) == [], effect.name
             continue
         applied, replayed = torch.Generator().manual_seed(6), torch.Generator().manual_seed(6)
-        effect.apply(inputs[effect.stage], {}, applied, EffectContext(yaw_deg=torch.zeros(n)))
+        effect.apply(inputs[effect.acts_on], {}, applied, EffectContext(yaw_deg=torch.zeros(n)))
         replay_draws(effect.draws(n, hw, image_hw), replayed)
         assert torch.equal(_state(applied), _state(replayed)), effect.name
 

@@ -1,10 +1,10 @@
 """What an effect is: a named physical effect with typed parameters and a vectorised ``apply``.
 
-An effect is one thing a real DIGIT does that the simple simulator does not. It acts at one
-stage of the image formation, on that stage's data:
+An effect is one thing a real DIGIT does that the simple simulator does not. It acts on one
+part of the image formation (its ``acts_on``), on that part's data:
 
 ========  ==========================================  =====================================
-stage     ``x`` given to ``apply``                    meaning
+acts_on   ``x`` given to ``apply``                    meaning
 ========  ==========================================  =====================================
 pose      ``geometry.contacts.Poses``                 where the object really touched
 geometry  signed height (N, 1, H, W), mm              object surface / gel displacement
@@ -33,9 +33,10 @@ import torch
 
 from tactile_bench.errors import TactileBenchError
 
-Stage = Literal["pose", "geometry", "optics", "camera"]
+ActsOn = Literal["pose", "geometry", "optics", "camera"]
 Draw = tuple[Literal["rand", "randn"], tuple[int, ...]]  # a torch.rand / torch.randn call
-STAGES: tuple[Stage, ...] = ("pose", "geometry", "optics", "camera")
+#: the parts of image formation an effect acts on, in the order they happen
+IMAGE_FORMATION: tuple[ActsOn, ...] = ("pose", "geometry", "optics", "camera")
 ParamValue = torch.Tensor | float
 
 
@@ -119,7 +120,7 @@ class Effect(ABC):
     """
 
     name: ClassVar[str]
-    stage: ClassVar[Stage]
+    acts_on: ClassVar[ActsOn]
     description: ClassVar[str]
     params: ClassVar[tuple[Param, ...]]
     differentiable: ClassVar[tuple[str, ...]] = ()
@@ -129,7 +130,7 @@ class Effect(ABC):
         self._index = {p.name: p for p in self.params}
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(name={self.name!r}, stage={self.stage!r})"
+        return f"{type(self).__name__}(name={self.name!r}, acts_on={self.acts_on!r})"
 
     # ---------------------------------------------------------------- parameters
     def param(self, name: str) -> Param:
@@ -222,7 +223,7 @@ class Effect(ABC):
 
     def summary(self) -> str:
         """One line per parameter: name, unit, default, range, neutral, source."""
-        rows = [f"{self.name} ({self.stage})"]
+        rows = [f"{self.name} ({self.acts_on})"]
         for q in self.params:
             rows.append(
                 f"  {q.name} [{q.unit}] default {q.default} range [{q.low}, {q.high}] "
