@@ -71,10 +71,13 @@ def _list_translators() -> None:
 def _list_effects() -> None:
     from tactile_bench.effects import EFFECTS
 
-    print("effects (the surrogate DIGIT's physics; order: pose -> geometry -> optics -> camera):")
+    print(
+        "effects (the surrogate DIGIT's physics; [what each acts on], in order: "
+        "pose -> geometry -> optics -> camera):"
+    )
     for name, effect in EFFECTS.items():
         first_sentence = " ".join(effect.description.split()).split(". ")[0].rstrip(".")
-        print(f"  {name:<20} [{effect.stage}] {first_sentence}.")
+        print(f"  {name:<20} [{effect.acts_on}] {first_sentence}.")
         for q in effect.params:
             print(
                 f"      {q.name:<18} {q.default:g} {q.unit:<8} range [{q.low:g}, {q.high:g}], "

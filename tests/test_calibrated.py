@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from tactile_bench.diagnose.calibrated import CalibratedTranslator, area_strata
-from tactile_bench.effects.base import gaussian_blur
+from tactile_bench.effects.kernels import gaussian_blur
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.metrics import estimate_pixel_noise
 from tactile_bench.sensor.background import sim_background

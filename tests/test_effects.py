@@ -9,9 +9,16 @@ import numpy as np
 import pytest
 import torch
 
-from tactile_bench.effects import EFFECT_ORDER, EFFECTS, EffectContext, OpticalScene, get_effect
-from tactile_bench.effects.base import surface_gradient
+from tactile_bench.effects import (
+    EFFECT_ORDER,
+    EFFECTS,
+    IMAGE_FORMATION,
+    EffectContext,
+    OpticalScene,
+    get_effect,
+)
 from tactile_bench.effects.camera import jpeg_approx
+from tactile_bench.effects.kernels import surface_gradient
 from tactile_bench.effects.optics import fitted_response_image, new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
@@ -33,8 +40,8 @@ def _height(n: int = 3, size: int = 48) -> torch.Tensor:
     return torch.stack(out)[:, None].float()
 
 
-def _input(stage: str, n: int = 3):
-    if stage == "pose":
+def _input(acts_on: str, n: int = 3):
+    if acts_on == "pose":
         return Poses(
             labels=torch.arange(n),
             x_mm=torch.linspace(-1, 1, n),
@@ -42,9 +49,9 @@ def _input(stage: str, n: int = 3):
             yaw_deg=torch.linspace(-20, 20, n),
             press_mm=torch.full((n,), 0.5),
         )
-    if stage == "geometry":
+    if acts_on == "geometry":
         return _height(n)
-    if stage == "optics":
+    if acts_on == "optics":
         surface = torch.nn.functional.adaptive_avg_pool2d(_height(n).clamp(min=0), S)
         gx, gy = surface_gradient(surface, CTX)
         delta = fitted_response_image(gx[:, 0], gy[:, 0], (surface[:, 0] > 0).float())
@@ -75,7 +82,7 @@ ALL = list(EFFECT_ORDER)
 
 def test_registry_is_explicit_and_complete() -> None:
     assert len(EFFECTS) >= 15
-    assert {e.stage for e in EFFECTS.values()} == {"pose", "geometry", "optics", "camera"}
+    assert {e.acts_on for e in EFFECTS.values()} == set(IMAGE_FORMATION)
     for name, effect in EFFECTS.items():
         assert effect.name == name and effect.description and effect.params
         for p in effect.params:
@@ -87,7 +94,7 @@ def test_registry_is_explicit_and_complete() -> None:
 @pytest.mark.parametrize("name", ALL)
 def test_changes_when_on_and_identity_at_neutral(name: str) -> None:
     effect = get_effect(name)
-    x = _input(effect.stage)
+    x = _input(effect.acts_on)
     ref = _as_tensor(x)
     on = _as_tensor(effect.apply(x, None, _gen(), CTX))
     assert on.shape == ref.shape
@@ -104,7 +111,7 @@ def test_changes_when_on_and_identity_at_neutral(name: str) -> None:
 @pytest.mark.parametrize("name", ALL)
 def test_seeded_determinism(name: str) -> None:
     effect = get_effect(name)
-    x = _input(effect.stage)
+    x = _input(effect.acts_on)
     a = _as_tensor(effect.apply(x, None, _gen(1), CTX))
     b = _as_tensor(effect.apply(x, None, _gen(1), CTX))
     assert torch.equal(a, b)
@@ -144,7 +151,7 @@ def test_range_bounds_are_valid_values_in_any_precision(name: str) -> None:
 @pytest.mark.parametrize("name", [n for n in ALL if not EFFECTS[n].stochastic])
 def test_batched_equals_per_image(name: str) -> None:
     effect = get_effect(name)
-    x = _input(effect.stage, n=3)
+    x = _input(effect.acts_on, n=3)
     batched = _as_tensor(effect.apply(x, None, _gen(), CTX))
     singles = []
     for i in range(3):
@@ -159,7 +166,7 @@ def test_batched_equals_per_image(name: str) -> None:
 @pytest.mark.parametrize("name", [n for n in ALL if EFFECTS[n].differentiable])
 def test_gradients_flow_to_declared_params(name: str) -> None:
     effect = get_effect(name)
-    x = _input(effect.stage)
+    x = _input(effect.acts_on)
     params = {k: torch.tensor(float(v), requires_grad=True) for k, v in effect.defaults().items()}
     out = _as_tensor(effect.apply(x, params, _gen(), CTX))
     weights = torch.linspace(0.5, 1.5, out.numel()).reshape(out.shape)
@@ -196,7 +203,7 @@ def test_jpeg_approximation_close_to_a_real_encoder() -> None:
 def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
     import math
 
-    from tactile_bench.effects.base import _conv1d_slices, gaussian_kernel1d
+    from tactile_bench.effects.kernels import _conv1d_slices, gaussian_kernel1d
 
     if sx > 4 and sy > 4:  # the wide path: 2x area down, blur, bilinear up
         small = torch.nn.functional.avg_pool2d(x, 2)
@@ -209,7 +216,7 @@ def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
 
 @pytest.mark.parametrize(("sx", "sy"), [(0.43, 0.32), (1.6, 1.2), (6.4, 4.8), (17.8, 13.3)])
 def test_matrix_blur_matches_convolution(sx: float, sy: float) -> None:
-    from tactile_bench.effects.base import gaussian_blur
+    from tactile_bench.effects.kernels import gaussian_blur
 
     x = torch.randn(3, 2, 128, 96, generator=_gen())
     ours = gaussian_blur(x, torch.tensor(sx), torch.tensor(sy))
@@ -222,7 +229,7 @@ def test_matrix_blur_matches_convolution(sx: float, sy: float) -> None:
 
 @pytest.mark.parametrize("smear_mm", [0.1, 1.2])
 def test_shear_smear_matches_shifted_samples(smear_mm: float) -> None:
-    from tactile_bench.effects.base import shift_mm
+    from tactile_bench.effects.kernels import shift_mm
 
     effect, x = get_effect("shear_smear"), _height(4, 64)
     ours = effect.apply(x, {"smear_mm": smear_mm}, _gen(3), CTX)
@@ -233,7 +240,7 @@ def test_shear_smear_matches_shifted_samples(smear_mm: float) -> None:
 
 
 def test_elastic_spread_matches_masked_pyramid() -> None:
-    from tactile_bench.effects.base import gaussian_blur
+    from tactile_bench.effects.kernels import gaussian_blur
 
     x = _height(3, 96)
     ours = get_effect("elastic_spread").apply(x, None, None, CTX)

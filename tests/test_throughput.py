@@ -11,16 +11,16 @@ import torch.nn.functional as F
 
 from tactile_bench.bench.throughput import braille_throughput, format_report, object_throughput
 from tactile_bench.effects import EFFECTS, EffectContext
-from tactile_bench.effects.base import blur_matrices, gaussian_blur
 from tactile_bench.effects.camera import jpeg_approx
+from tactile_bench.effects.kernels import area_pool, blur_matrices, gaussian_blur
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.geometry.braille import BrailleSpec, braille_mesh
 from tactile_bench.geometry.contacts import classifier_protocol
-from tactile_bench.sensor.depth import GelSpec, _affine_grid, _sample_maps, area_pool, render_height
+from tactile_bench.sensor.depth import GelSpec, _affine_grid, _sample_maps, render_height
 from tactile_bench.sensor.heightfield import build_bank, raycast_heights
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer, embree_available
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.timing import StageTimer, stage
+from tactile_bench.sensor.timing import SpanTimer, timed_span
 
 CHARS = ("A", "Y", "#")
 needs_embree = pytest.mark.skipif(not embree_available(), reason="embreex not installed")
@@ -34,36 +34,36 @@ def bank():
 def _check_report(report: dict, n: int) -> None:
     assert report["n"] == n and report["wall_s"] > 0 and report["cpu_s"] > 0
     assert report["per_s"] == pytest.approx(n / report["wall_s"])
-    assert set(report["stages"]) == set(report["stages_cpu"])
-    assert all(v >= 0 for v in report["stages"].values())
-    # exclusive stage times plus the untimed rest add up to the wall time
-    assert sum(report["stages"].values()) == pytest.approx(report["wall_s"], rel=0.05)
+    assert set(report["spans"]) == set(report["spans_cpu"])
+    assert all(v >= 0 for v in report["spans"].values())
+    # exclusive span times plus the untimed rest add up to the wall time
+    assert sum(report["spans"].values()) == pytest.approx(report["wall_s"], rel=0.05)
     assert len(report["load"]) == 3 and report["threads"] == torch.get_num_threads()
 
 
-def test_braille_throughput_reports_every_stage() -> None:
+def test_braille_throughput_reports_every_span() -> None:
     report = braille_throughput(8, seed=1)
     _check_report(report, 8)
-    stages = report["stages"]
+    spans = report["spans"]
     for name in ("bank", "sim.height", "sim.depth", "sim.optics", "real.height", "io", "uint8"):
-        assert stages[name] > 0, name
+        assert spans[name] > 0, name
     for effect in EFFECTS.values():  # the default profile has every effect on
-        assert f"real.{effect.stage}.{effect.name}" in stages
+        assert f"real.{effect.acts_on}.{effect.name}" in spans
     text = format_report("braille", report)
     assert text.startswith("braille: 8 in") and "sim.optics" in text
 
 
-def test_object_throughput_reports_every_stage() -> None:
+def test_object_throughput_reports_every_span() -> None:
     report = object_throughput(10, objects=("042_adjustable_wrench",), workers=1)
     assert report["n"] + report["frames_dropped"] == 10
     _check_report(report, report["n"])
     for name in ("objects", "surface", "trajectories", "mesh_bvh", "height.rays", "settle"):
-        assert report["stages"][name] > 0, name
+        assert report["spans"][name] > 0, name
     with pytest.raises(Exception, match="n must be"):
         object_throughput(3)
 
 
-def test_stage_timer_is_exclusive_and_off_by_default(monkeypatch) -> None:
+def test_span_timer_is_exclusive_and_off_by_default(monkeypatch) -> None:
     import types
 
     from tactile_bench.sensor import timing
@@ -71,12 +71,12 @@ def test_stage_timer_is_exclusive_and_off_by_default(monkeypatch) -> None:
     ticks = iter(range(100))  # a fake clock: every reading is one second later
     fake = types.SimpleNamespace(perf_counter=lambda: next(ticks), thread_time=lambda: 0.0)
     monkeypatch.setattr(timing, "time", fake)
-    with stage("nobody.listens"):  # no timer active: nothing recorded, the clock not read
+    with timed_span("nobody.listens"):  # no timer active: nothing recorded, the clock not read
         pass
-    with StageTimer() as timer, stage("outer"):  # reads 0 ... 5
-        with stage("inner"):  # reads 1 ... 2
+    with SpanTimer() as timer, timed_span("outer"):  # reads 0 ... 5
+        with timed_span("inner"):  # reads 1 ... 2
             pass
-        with stage("inner"):  # reads 3 ... 4
+        with timed_span("inner"):  # reads 3 ... 4
             pass
     assert dict(timer.wall) == {"inner": 2.0, "outer": 3.0}  # 5 s in all, 2 of them inside
 
@@ -138,7 +138,7 @@ def test_factored_blur_equals_its_matrices(sigma: tuple[float, float]) -> None:
 )
 def test_narrow_blur_by_taps_equals_the_matrices(shape: tuple, sigma: tuple) -> None:
     """Narrow blurs (radius <= 5 px) run as shifted adds: the same blur as the matrices."""
-    from tactile_bench.effects.base import _cached_small_taps
+    from tactile_bench.effects.kernels import _cached_small_taps
 
     assert _cached_small_taps(shape[2], shape[3], *sigma, 64) is not None  # the taps path
     x = torch.rand(*shape) * 255
@@ -308,7 +308,7 @@ def test_skip_random_replays_exactly_what_render_draws(bank, profile: str) -> No
 
 
 def test_every_stochastic_effect_declares_its_draws() -> None:
-    from tactile_bench.effects.base import replay_draws
+    from tactile_bench.effects.draws import replay_draws
     from tactile_bench.geometry.contacts import Poses
 
     n, hw, image_hw = 5, (24, 24), (12, 12)
@@ -324,7 +324,7 @@ def test_every_stochastic_effect_declares_its_draws() -> None:
             assert effect.draws(n, hw, image_hw) == [], effect.name
             continue
         applied, replayed = torch.Generator().manual_seed(6), torch.Generator().manual_seed(6)
-        effect.apply(inputs[effect.stage], {}, applied, EffectContext(yaw_deg=torch.zeros(n)))
+        effect.apply(inputs[effect.acts_on], {}, applied, EffectContext(yaw_deg=torch.zeros(n)))
         replay_draws(effect.draws(n, hw, image_hw), replayed)
         assert torch.equal(_state(applied), _state(replayed)), effect.name
 

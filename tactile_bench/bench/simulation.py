@@ -44,7 +44,7 @@ from tactile_bench.sensor.heightfield import build_bank
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
-from tactile_bench.sensor.timing import StageTimer
+from tactile_bench.sensor.timing import SpanTimer
 
 SCALES = (1, 2, 4)
 #: frames of one object in the default corpus (8000 pairs over 10 objects): the objects'
@@ -161,7 +161,7 @@ def objects(
 
             def build(config: StandinConfig = config, runs: Iterator[int] = runs) -> float:
                 # a fresh directory each time: the builder would skip finished shards
-                with StageTimer() as timer:  # workers report their CPU time to it
+                with SpanTimer() as timer:  # workers report their CPU time to it
                     build_ycb_slide_standin(
                         Path(tmp) / f"run_{next(runs)}",
                         config=config,

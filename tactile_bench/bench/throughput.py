@@ -1,4 +1,4 @@
-"""End-to-end simulation throughput of the two dataset builders, stage by stage.
+"""End-to-end simulation throughput of the two dataset builders, timed span by span.
 
 A benchmark of the builders of the data layer, so it lives with the benchmarks (``bench``),
 above the layers it measures.
@@ -6,7 +6,7 @@ above the layers it measures.
 ``braille_throughput(n)`` and ``object_throughput(n)`` build ``n`` braille contacts or ``n``
 pretraining-object frames exactly as the pipeline's ``braille_data`` and ``ycb_slide_data``
 stages do (same functions, same defaults: sim depth, sim image and surrogate-real image of
-every contact or frame) and time every stage with ``sensor.timing``. Both include writing
+every contact or frame) and time every span with ``sensor.timing``. Both include writing
 the results, since both stages always write them (``braille_data`` saves each set; the
 corpus builder writes its shards), into a temporary directory deleted afterwards.
 
@@ -14,11 +14,11 @@ Both run on torch's thread count, as the builders do: braille contacts in that m
 threads (``render_braille_set``), object frames in that many worker processes
 (``build_ycb_slide_standin``); each gives the same data as one thread.
 
-Returned: ``{"n", "wall_s", "per_s", "cpu_s", "per_cpu_s", "threads", "load", "stages",
-"stages_cpu"}`` with ``stages`` the wall seconds of each stage (exclusive of the stages
-inside it; ``other`` is the untimed rest) and ``stages_cpu`` the same in CPU seconds of the
-thread that ran the stage (``cpu_s`` is the whole process's, worker processes included).
-With several threads or processes the stage times are summed over them (the wall times
+Returned: ``{"n", "wall_s", "per_s", "cpu_s", "per_cpu_s", "threads", "load", "spans",
+"spans_cpu"}`` with ``spans`` the wall seconds of each timed span (exclusive of the spans
+inside it; ``other`` is the untimed rest) and ``spans_cpu`` the same in CPU seconds of the
+thread that ran the span (``cpu_s`` is the whole process's, worker processes included).
+With several threads or processes the span times are summed over them (the wall times
 then add up to more than ``wall_s``). ``load`` is ``os.getloadavg()`` at the start: on a
 shared machine the wall figures are only as good as the machine is idle (and Linux's
 per-session "autogroup" scheduling gives a session one share however many processes it
@@ -45,8 +45,7 @@ from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.heightfield import build_bank
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
-from tactile_bench.sensor.timing import StageTimer
-from tactile_bench.sensor.timing import stage as timed
+from tactile_bench.sensor.timing import SpanTimer, timed_span
 
 #: proportions of the ``braille_data`` stage's default sets (finetune, test, classifier,
 #: classifier_test): 1080 + 837 + 10692 + 837 = 13446 contacts.
@@ -67,11 +66,11 @@ def _split(n: int, weights: tuple[int, ...]) -> list[int]:
     return parts
 
 
-def _report(n: int, timer: StageTimer, wall: float, cpu: float, load: tuple) -> dict[str, Any]:
-    stages = dict(sorted(timer.wall.items(), key=lambda kv: -kv[1]))
-    stages_cpu = {k: timer.cpu[k] for k in stages}
-    stages["other"] = max(0.0, wall - sum(timer.wall.values()))
-    stages_cpu["other"] = max(0.0, cpu - sum(timer.cpu.values()))
+def _report(n: int, timer: SpanTimer, wall: float, cpu: float, load: tuple) -> dict[str, Any]:
+    spans = dict(sorted(timer.wall.items(), key=lambda kv: -kv[1]))
+    spans_cpu = {k: timer.cpu[k] for k in spans}
+    spans["other"] = max(0.0, wall - sum(timer.wall.values()))
+    spans_cpu["other"] = max(0.0, cpu - sum(timer.cpu.values()))
     return {
         "n": n,
         "wall_s": wall,
@@ -80,8 +79,8 @@ def _report(n: int, timer: StageTimer, wall: float, cpu: float, load: tuple) -> 
         "per_cpu_s": n / cpu if cpu > 0 else float("inf"),
         "threads": torch.get_num_threads(),
         "load": load,
-        "stages": stages,
-        "stages_cpu": stages_cpu,
+        "spans": spans,
+        "spans_cpu": spans_cpu,
     }
 
 
@@ -90,7 +89,7 @@ def braille_throughput(n: int, seed: int = 0, real_sensor: str = "digit") -> dic
 
     The contacts are split over the stage's four sets in its default proportions (at
     ``n = 13446`` exactly the default stage); the height-field bank is ray-cast as the
-    stage does (stage ``bank``) and the sets are saved to a temporary directory (``io``).
+    stage does (span ``bank``) and the sets are saved to a temporary directory (``io``).
     """
     if n < len(BRAILLE_DEFAULT_SETS):
         raise TactileBenchError(f"braille_throughput: n must be >= 4, got {n}")
@@ -100,10 +99,10 @@ def braille_throughput(n: int, seed: int = 0, real_sensor: str = "digit") -> dic
     if n_ft + n_te > grid or n_cl > 396 * len(chars):
         raise TactileBenchError(f"braille_throughput: n = {n} exceeds the protocols' grids")
     load = os.getloadavg()
-    with StageTimer() as timer, tempfile.TemporaryDirectory() as tmp:
+    with SpanTimer() as timer, tempfile.TemporaryDirectory() as tmp:
         w0, c0 = time.perf_counter(), time.process_time()
         gel = GelSpec()
-        with timed("bank"):
+        with timed_span("bank"):
             bank = build_bank(chars, BrailleSpec())
         real = SurrogateDigit.from_profile(real_sensor)
         sets = build_braille_sets(
@@ -120,7 +119,7 @@ def braille_throughput(n: int, seed: int = 0, real_sensor: str = "digit") -> dic
             n_classifier_test=n_ct,
             progress=False,
         )
-        with timed("io"):
+        with timed_span("io"):
             for name, s in sets.items():
                 s.save(Path(tmp) / f"{name}.npz")
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
@@ -129,16 +128,16 @@ def braille_throughput(n: int, seed: int = 0, real_sensor: str = "digit") -> dic
 
 
 def format_report(name: str, report: dict[str, Any]) -> str:
-    """A few lines: rate, then each stage's wall and CPU seconds and share."""
+    """A few lines: rate, then each span's wall and CPU seconds and share."""
     lines = [
         f"{name}: {report['n']} in {report['wall_s']:.2f} s wall = {report['per_s']:.0f}/s "
         f"({report['cpu_s']:.2f} s CPU = {report['per_cpu_s']:.0f}/CPU-s), "
         f"{report['threads']} thread(s), load {report['load'][0]:.2f}"
     ]
-    for stage, wall in report["stages"].items():
-        cpu = report["stages_cpu"][stage]
+    for span, wall in report["spans"].items():
+        cpu = report["spans_cpu"][span]
         share = 100 * wall / report["wall_s"] if report["wall_s"] else 0.0
-        lines.append(f"  {stage:32s} {wall:8.3f} s {cpu:8.3f} cpu-s {share:5.1f}%")
+        lines.append(f"  {span:32s} {wall:8.3f} s {cpu:8.3f} cpu-s {share:5.1f}%")
     return "\n".join(lines)
 
 
@@ -157,12 +156,12 @@ def object_throughput(
     ``n`` counts the pairs written: frames where the sensor would collide with the object
     are dropped (a few %), but their rendering is timed too. ``workers`` as in
     ``build_ycb_slide_standin`` (default: one process per torch thread); with several,
-    the stage times are summed over the processes (so they add up to more than the wall).
+    the span times are summed over the processes (so they add up to more than the wall).
     """
     if n < 10:
         raise TactileBenchError(f"object_throughput: n must be >= 10, got {n}")
     load = os.getloadavg()
-    with StageTimer() as timer, tempfile.TemporaryDirectory() as tmp:
+    with SpanTimer() as timer, tempfile.TemporaryDirectory() as tmp:
         w0, c0 = time.perf_counter(), time.process_time()
         objs = tuple(objects) if objects is not None else StandinConfig().objects
         manifest = build_ycb_slide_standin(

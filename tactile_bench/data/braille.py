@@ -32,7 +32,7 @@ from tactile_bench.io import atomic_write_npz, load_npz
 from tactile_bench.sensor.depth import GelSpec, render_height, to_depth
 from tactile_bench.sensor.heightfield import HeightFieldBank
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.timing import stage as timed
+from tactile_bench.sensor.timing import timed_span
 
 _POSE_KEYS = ("labels", "x_mm", "y_mm", "yaw_deg", "press_mm")
 #: the classifier_test contacts rendered by a second unit (``build_braille_sets(second_unit=)``)
@@ -233,9 +233,9 @@ def _sim_depths(args: tuple, start: int, stop: int) -> list[torch.Tensor]:
     bank, poses, gel, *_, chunk, _ = args
     depths = []
     for k in range(start, stop, chunk):
-        with timed("sim.height"):
+        with timed_span("sim.height"):
             h = render_height(bank, poses.index(slice(k, min(k + chunk, stop))), gel)
-        with timed("sim.depth"):
+        with timed_span("sim.depth"):
             depths.append(to_depth(h, gel, inplace=True))
     return depths
 
@@ -255,12 +255,12 @@ def _render_range(
     sim, real = [], []
     for k, d in zip(range(start, stop, chunk), depth, strict=True):
         part = poses.index(slice(k, min(k + chunk, stop)))
-        with timed("sim.optics"):
+        with timed_span("sim.optics"):
             s = sim_optics.render(d, sim_background, sim_gen, gel)
-        with timed("uint8"):
+        with timed_span("uint8"):
             sim.append(to_uint8(s))
         r = real_sensor.render(bank, part, gel, real_gen)
-        with timed("uint8"):
+        with timed_span("uint8"):
             real.append(to_uint8(r[0] if isinstance(r, tuple) else r))
         if bar is not None:
             bar.update(len(part))

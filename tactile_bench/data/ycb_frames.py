@@ -19,7 +19,7 @@ from tactile_bench.geometry.trajectories import Trajectory
 from tactile_bench.sensor.depth import GelSpec, to_depth
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.timing import stage as timed
+from tactile_bench.sensor.timing import timed_span
 
 from .pixels import to_uint8
 
@@ -98,7 +98,7 @@ def settle_press(
     one more correction, so a few frames two passes left unsettled (dropped as collisions)
     now settle (+4 of 270 frames on mug, scissors, sugar box). None: no probe.
     """
-    with timed("settle"):
+    with timed_span("settle"):
         return _settle_press(renderer, poses, press_mm, passes, peak_step)
 
 
@@ -169,15 +169,15 @@ def trajectory_pairs(
             continue
         generator = chunk_generator(object_seed, traj.index, c)
         mask = torch.from_numpy(ok)
-        with timed("sim.depth"):
+        with timed_span("sim.depth"):
             d = to_depth(meas_h[mask], gel, inplace=True)  # [mask] is a copy of our own
         depth.append(d)
-        with timed("sim.optics"):
+        with timed_span("sim.optics"):
             s = sim_optics.render(d, sim_background, generator, gel)
-        with timed("uint8"):
+        with timed_span("uint8"):
             sim.append(to_uint8(s))
         r = real_sensor.render_surface(true_h[mask], gel, generator)
-        with timed("uint8"):
+        with timed_span("uint8"):
             real.append(to_uint8(r))
         poses.append(true_p[ok])
         keep.append(np.arange(sl.start, sl.start + len(press))[ok])

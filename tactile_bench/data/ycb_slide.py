@@ -41,7 +41,7 @@ from tactile_bench.sensor.background import sim_background as default_sim_backgr
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
-from tactile_bench.sensor.timing import stage as timed
+from tactile_bench.sensor.timing import timed_span
 
 from .pairs import FORMAT, PairSet, read_manifest, write_backgrounds
 from .pixels import to_uint8
@@ -156,7 +156,7 @@ def build_ycb_slide_standin(
                 done += write_shard(job, k, [parts[p] for p in sorted(parts)])
                 del split[(job.index, k)]
     shards = []
-    with timed("io"):
+    with timed_span("io"):
         for oi, name in enumerate(config.objects):
             rng = np.random.default_rng([config.seed, oi])
             test = set(

@@ -29,8 +29,7 @@ from tactile_bench.geometry.trajectories import exposed_surface, sliding_traject
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.timing import StageTimer, active_timer
-from tactile_bench.sensor.timing import stage as timed
+from tactile_bench.sensor.timing import SpanTimer, active_timer, timed_span
 
 from .pairs import PairSet
 from .pixels import to_uint8
@@ -83,7 +82,7 @@ def write_shard(job: ObjectJob, k: int, pieces: list[dict[str, Any]]) -> int:
     n = len(out["frame"])
     if not n:
         raise TactileBenchError(f"{job.name} trajectory {k}: no valid contact")
-    with timed("io"):
+    with timed_span("io"):
         PairSet(
             depth=out["depth"],
             real=out["real"],
@@ -119,11 +118,11 @@ def _build_object(job: ObjectJob) -> Built:
 
     config, gel, name = job.config, job.gel, job.name
     obj_seed = job.object_seed
-    with timed("objects"):
+    with timed_span("objects"):
         parts = object_parts(name, obj_seed)
-    with timed("surface"):
+    with timed_span("surface"):
         surface = exposed_surface(parts)
-    with timed("trajectories"):
+    with timed_span("trajectories"):
         trajs = sliding_trajectories(
             surface,
             name,
@@ -136,7 +135,7 @@ def _build_object(job: ObjectJob) -> Built:
             tilt_deg=config.tilt_deg,
             seed=obj_seed,
         )
-    with timed("mesh_bvh"):
+    with timed_span("mesh_bvh"):
         renderer = MeshDepthRenderer.from_trimesh(trimesh.util.concatenate(parts), gel)
     built = Built({}, {})
     whole = trajectory_chunks(config.frames_per_trajectory)
@@ -167,11 +166,11 @@ def _worker_init() -> None:
 
 
 def _build_object_timed(job: ObjectJob) -> tuple[dict[int, int], dict | None]:
-    """``_build_object`` in a worker process, with its stage times when the parent times."""
+    """``_build_object`` in a worker process, with its span times when the parent times."""
     if not job.timing:
         return _build_object(job), None
     cpu = time.process_time()
-    with StageTimer() as timer:
+    with SpanTimer() as timer:
         built = _build_object(job)
     times = {"wall": dict(timer.wall), "cpu": dict(timer.cpu)}
     return built, {**times, "process_cpu": time.process_time() - cpu}

@@ -79,8 +79,9 @@ import torch.nn.functional as F
 
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, Effect, EffectContext
-from tactile_bench.effects.base import ParamValue, gaussian_blur
+from tactile_bench.effects.base import ParamValue
 from tactile_bench.effects.camera import libjpeg
+from tactile_bench.effects.kernels import gaussian_blur
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec
@@ -326,7 +327,8 @@ class Candidate:
     """How one catalogue effect is searched and applied to a ``Base``.
 
     ``searched``: the parameters a fit varies (others held at neutral). ``apply`` takes the
-    stage's data like ``Effect.apply`` plus the ``Base`` (for data-derived parts).
+    data of the part it acts on like ``Effect.apply`` plus the ``Base`` (for data-derived
+    parts).
     """
 
     def __init__(
@@ -344,7 +346,7 @@ class Candidate:
         self.fixed = dict(fixed or {})  # held values of skipped parameters (else neutral)
         skip = tuple(skip) + tuple(self.fixed)
         self.name = effect.name
-        self.stage = effect.stage
+        self.acts_on = effect.acts_on
         self.stochastic = effect.stochastic
         self.note = note
         # geometry changes reach the image through the simulator's optics, a black box (a
@@ -360,7 +362,7 @@ class Candidate:
             )
             for p in effect.params
             if p.name not in skip
-            for diff in [p.name in effect.differentiable and effect.stage != "geometry"]
+            for diff in [p.name in effect.differentiable and effect.acts_on != "geometry"]
         )
 
     latent_grid: tuple[float, ...] = ()  # values of a per-pair hidden variable, tried per pair
@@ -657,7 +659,7 @@ def _deterministic_geometry(effects: Mapping[str, Any]) -> dict[str, Any]:
     return {
         n: dict(p)
         for n, p in effects.items()
-        if CANDIDATES[n].stage == "geometry"
+        if CANDIDATES[n].acts_on == "geometry"
         and not CANDIDATES[n].stochastic
         and not CANDIDATES[n].latent_grid
     }
@@ -721,9 +723,10 @@ def get_candidate(name: str) -> Candidate:
 
 def bake_fixed(base: Base, effects: Mapping[str, Mapping[str, ParamValue]]) -> Base:
     """``base`` with (deterministic) pose and geometry ``effects`` applied: a new depth and
-    colour change, so later stages can be fitted without re-rendering them every step."""
+    colour change, so the effects acting after them can be fitted without re-rendering them
+    every step."""
     ctx = base.context()
-    for n in [n for n in EFFECT_ORDER if n in effects and CANDIDATES[n].stage == "pose"]:
+    for n in [n for n in EFFECT_ORDER if n in effects and CANDIDATES[n].acts_on == "pose"]:
         base = CANDIDATES[n].apply(base, effects[n], None, ctx, base)
     height, delta = _geometry(base, effects, None, ctx)
     baked = {**base.baked, **_deterministic_geometry(effects)}
@@ -739,7 +742,7 @@ def _geometry(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(height, delta) after the geometry effects among ``effects``, in catalogue order
     (``shade=False``: the height only; delta is returned unchanged)."""
-    names = [n for n in EFFECT_ORDER if n in effects and CANDIDATES[n].stage == "geometry"]
+    names = [n for n in EFFECT_ORDER if n in effects and CANDIDATES[n].acts_on == "geometry"]
     if not names:
         return base.depth, base.delta
     factor = max(CANDIDATES[n].oversample for n in names)
@@ -771,7 +774,7 @@ def render(
                 base, {**base.baked, **_deterministic_geometry({n: effects[n] for n in names})}
             ),
         )
-    for n in [n for n in names if CANDIDATES[n].stage == "pose"]:
+    for n in [n for n in names if CANDIDATES[n].acts_on == "pose"]:
         base = CANDIDATES[n].apply(base, effects[n], generator, ctx, base)
     height, delta = _geometry(base, effects, generator, ctx)
     # the light the sim saw (its own no-contact frame) goes through the candidate sensor
@@ -785,7 +788,7 @@ def render(
     flat = _through_sensor(base, names, effects, new_scene(flat_height, ref), ctx)
     measured = base.background
     image = measured + (contact - flat)
-    for n in [n for n in names if CANDIDATES[n].stage == "camera"]:
+    for n in [n for n in names if CANDIDATES[n].acts_on == "camera"]:
         cand, p = CANDIDATES[n], effects[n]
         if cand.tone_curve:  # at the real light's level: the measured frame undone
             light = cand.undo(measured, p) + (image - measured)  # the change, noise and all
@@ -809,12 +812,12 @@ def _through_sensor(
     """A scene through the optics and the camera effects that are linear in the light
     (blur, vignetting), in catalogue order: deterministic, no draws. Tone curves, codecs
     and per-frame noise act on the composite (``render``)."""
-    for n in [n for n in names if CANDIDATES[n].stage == "optics"]:
+    for n in [n for n in names if CANDIDATES[n].acts_on == "optics"]:
         scene = CANDIDATES[n].apply(scene, effects[n], None, ctx, base)
     image = scene.composite()
     for n in names:
         cand = CANDIDATES[n]
-        if cand.stage == "camera" and not (cand.whole_frame or cand.tone_curve or cand.codec):
+        if cand.acts_on == "camera" and not (cand.whole_frame or cand.tone_curve or cand.codec):
             image = cand.apply(image, effects[n], None, ctx, base)
     return image
 

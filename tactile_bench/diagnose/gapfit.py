@@ -31,7 +31,7 @@ from tactile_bench.diagnose.candidates import (
     get_candidate,
     render,
 )
-from tactile_bench.effects.base import gaussian_blur
+from tactile_bench.effects.kernels import gaussian_blur
 
 GAP_METRIC = (
     "structure + texture, grey level^2 (0..255): MSE of the images low-passed to ~1 px "
@@ -192,11 +192,11 @@ def fit_candidate(
     cand = get_candidate(name)
     budget = budget or FitBudget()
     prior = dict(prior or {})
-    # fixed pose and geometry before this candidate's stage: applied once, not every step
-    # (a codec's quality search renders hundreds of times)
-    stages = {"pose"} if cand.stage == "geometry" else {"pose", "geometry"}
-    baked = {n: p for n, p in prior.items() if CANDIDATES[n].stage in stages}
-    if baked and cand.stage != "pose" and not _random(baked):
+    # fixed pose and geometry effects acting before this candidate's part of image formation:
+    # applied once, not every step (a codec's quality search renders hundreds of times)
+    earlier = {"pose"} if cand.acts_on == "geometry" else {"pose", "geometry"}
+    baked = {n: p for n, p in prior.items() if CANDIDATES[n].acts_on in earlier}
+    if baked and cand.acts_on != "pose" and not _random(baked):
         base = bake_fixed(base, baked)
         prior = {n: p for n, p in prior.items() if n not in baked}
     gen = torch.Generator().manual_seed(seed)

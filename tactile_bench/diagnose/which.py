@@ -135,7 +135,8 @@ def _row(
     return EffectFit(name, params, b, a, shrink, min(lo, shrink), max(hi, shrink))
 
 
-#: what tells two effects of these stages apart, when the pairs at hand cannot
+#: what tells apart two effects acting on these parts of image formation, when the pairs at
+#: hand cannot
 _SEPARATE_BY: dict[frozenset[str], str] = {
     frozenset({"geometry", "optics"}): "presses of one shape at several depths: the gel's "
     "geometry changes the contact's shape with depth, the optics only its colour",
@@ -189,8 +190,8 @@ def _confusable(
             rivals.append(name)
     if not rivals:
         return row
-    stages = {get_candidate(row.effect).stage} | {get_candidate(r).stage for r in rivals}
-    hint = _SEPARATE_BY.get(frozenset(stages), "") if len(stages) == 2 else ""
+    acts_on = {get_candidate(row.effect).acts_on} | {get_candidate(r).acts_on for r in rivals}
+    hint = _SEPARATE_BY.get(frozenset(acts_on), "") if len(acts_on) == 2 else ""
     hint = hint or "more pairs, or contacts of other shapes and depths"
     return replace(row, confusable_with=rivals, separate_by=hint)
 

@@ -1,20 +1,21 @@
 """The catalogue of physical effects a real DIGIT shows and the simple simulator lacks.
 
 ``EFFECTS`` is built explicitly here (no registration by import side effect). Its order is
-the order of image formation, the one ``SurrogateDigit`` applies them in: stage by stage
-(pose -> geometry -> optics -> camera), and within a stage as listed.
+the order of image formation, the one ``SurrogateDigit`` applies them in: by the part they
+act on (``IMAGE_FORMATION``: pose -> geometry -> optics -> camera), and within a part as
+listed.
 """
 
 from __future__ import annotations
 
 from tactile_bench.effects.base import (
-    STAGES,
+    IMAGE_FORMATION,
+    ActsOn,
     Effect,
     EffectContext,
     OpticalScene,
     Param,
     ParamValue,
-    Stage,
 )
 from tactile_bench.effects.camera import (
     CameraNoise,
@@ -70,21 +71,21 @@ def get_effect(name: str) -> Effect:
         ) from None
 
 
-def effects_in_stage(stage: Stage) -> tuple[Effect, ...]:
-    """Registered effects of one stage, in application order."""
-    return tuple(e for e in _ORDERED if e.stage == stage)
+def effects_in(acts_on: ActsOn) -> tuple[Effect, ...]:
+    """Registered effects acting on one part of image formation, in application order."""
+    return tuple(e for e in _ORDERED if e.acts_on == acts_on)
 
 
 __all__ = [
     "EFFECTS",
     "EFFECT_ORDER",
-    "STAGES",
+    "IMAGE_FORMATION",
+    "ActsOn",
     "Effect",
     "EffectContext",
     "OpticalScene",
     "Param",
     "ParamValue",
-    "Stage",
-    "effects_in_stage",
+    "effects_in",
     "get_effect",
 ]

@@ -1,4 +1,4 @@
-"""Camera-stage effects: lens, sensor, image processor and video stream.
+"""Effects acting on the camera: lens, sensor, image processor and video stream.
 
 They act on the image (N, 3, S, S), 0..255, at the model resolution, in the order defocus
 -> vignetting -> noise -> gamma / white balance -> compression. Noise levels refer to frames
@@ -25,18 +25,16 @@ from tactile_bench.effects.base import (
     Param,
     ParamValue,
     as_tensor,
-    gaussian_blur,
     per_sub_batch,
-    pixel_grid,
-    randn,
-    resize_matrix,
     scalar,
 )
+from tactile_bench.effects.draws import randn
+from tactile_bench.effects.kernels import gaussian_blur, pixel_grid, resize_matrix
 
 
 class DefocusBlur(Effect):
     name = "defocus_blur"
-    stage = "camera"
+    acts_on = "camera"
     description = (
         "The DIGIT's fixed-focus lens sits about 22 mm behind a domed gel several mm thick, "
         "so not all of the surface is in focus: edges are spread by a point-spread function "
@@ -60,7 +58,7 @@ class DefocusBlur(Effect):
 
 class Vignetting(Effect):
     name = "vignetting"
-    stage = "camera"
+    acts_on = "camera"
     description = (
         "Brightness falls off towards the edges of the view: off-axis light reaches the "
         "sensor obliquely (the cos^4 law) and the LEDs light the rim less. Relative to the "
@@ -87,7 +85,7 @@ class Vignetting(Effect):
 
 class CameraNoise(Effect):
     name = "camera_noise"
-    stage = "camera"
+    acts_on = "camera"
     stochastic = True
     description = (
         "Sensor noise is not a fixed Gaussian: photon shot noise grows with the signal "
@@ -133,7 +131,7 @@ class CameraNoise(Effect):
 
 class GammaWhiteBalance(Effect):
     name = "gamma_white_balance"
-    stage = "camera"
+    acts_on = "camera"
     description = (
         "The camera's image processor is not linear and not neutral: auto white balance "
         "scales red and blue against green, and a tone curve (gamma) compresses highlights. "
@@ -361,7 +359,7 @@ def libjpeg(x: torch.Tensor, quality: float) -> torch.Tensor:
 
 class StreamCompression(Effect):
     name = "jpeg"
-    stage = "camera"
+    acts_on = "camera"
     description = (
         "A DIGIT streams MJPEG over USB: every frame is JPEG-compressed at the sensor's "
         "320 x 240 before anyone resizes it, which quantises fine detail in 8 x 8 blocks and "

@@ -1,4 +1,4 @@
-"""Geometry-stage effects: what happens to the surface between the object and the gel.
+"""Effects acting on the geometry: what happens to the surface between the object and the gel.
 
 They act on the signed height (N, 1, H, W) in mm (positive inside the gel), at the render
 resolution, in the order object texture -> elastic spread -> shear smear. Where the elastic
@@ -21,17 +21,16 @@ from tactile_bench.effects.base import (
     Param,
     ParamValue,
     as_tensor,
-    gaussian_blur,
     per_sub_batch,
-    pixel_grid,
-    randn,
     scalar,
 )
+from tactile_bench.effects.draws import randn
+from tactile_bench.effects.kernels import gaussian_blur, pixel_grid
 
 
 class SurfaceTexture(Effect):
     name = "surface_texture"
-    stage = "geometry"
+    acts_on = "geometry"
     stochastic = True
     description = (
         "A 3D-printed braille block is not its mesh. The top skin carries raster beads "
@@ -109,7 +108,7 @@ class SurfaceTexture(Effect):
 
 class ElasticSpread(Effect):
     name = "elastic_spread"
-    stage = "geometry"
+    acts_on = "geometry"
     description = (
         "The gel is a soft elastic layer, not a rigid mould: an indentation pulls the "
         "surrounding surface down with it (Boussinesq: displacement decays with distance "
@@ -186,7 +185,7 @@ class ElasticSpread(Effect):
 
 class ShearSmear(Effect):
     name = "shear_smear"
-    stage = "geometry"
+    acts_on = "geometry"
     stochastic = True
     description = (
         "A press is never purely normal: lateral compliance of the arm and friction drag the "

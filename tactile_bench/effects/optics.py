@@ -1,4 +1,4 @@
-"""Optics-stage effects: how the deformed gel turns the LEDs' light into colour.
+"""Effects acting on the optics: how the deformed gel turns the LEDs' light into colour.
 
 They act on an ``OpticalScene`` at the render resolution, in the order per-unit background
 -> optical response -> LED diffusivity -> shadows -> gel wear. The surrogate starts the
@@ -30,10 +30,9 @@ from tactile_bench.effects.base import (
     ParamValue,
     as_tensor,
     per_sub_batch,
-    pixel_grid,
     scalar,
-    surface_gradient,
 )
+from tactile_bench.effects.kernels import pixel_grid, surface_gradient
 from tactile_bench.errors import TactileBenchError
 
 # Depth (mm) over which a contact's flat-slope colour offset fades in.
@@ -169,7 +168,7 @@ def _real_response(height: torch.Tensor, ctx: EffectContext) -> torch.Tensor:
 
 class OpticalResponse(Effect):
     name = "optical_response"
-    stage = "optics"
+    acts_on = "optics"
     description = (
         "A real DIGIT is not three ideal point lights on a Lambertian surface. Light enters "
         "through the gel's edge, scatters in the elastomer and reflects off a semi-specular "
@@ -200,7 +199,7 @@ class OpticalResponse(Effect):
 
 class LedDiffusivity(Effect):
     name = "led_diffusivity"
-    stage = "optics"
+    acts_on = "optics"
     description = (
         "Every manufactured DIGIT lights its gel differently: its LEDs come from different "
         "intensity bins, sit slightly differently behind a diffusing edge, and their spectra "
@@ -238,7 +237,7 @@ class LedDiffusivity(Effect):
 
 class Shadows(Effect):
     name = "shadows"
-    stage = "optics"
+    acts_on = "optics"
     description = (
         "The LEDs light the gel from low on its side, so a steep bump of the gel surface "
         "occludes each LED for the surface just beyond it: a dark crescent on the side away "
@@ -328,7 +327,7 @@ def _running_max(acc: torch.Tensor | None, x: torch.Tensor) -> torch.Tensor:
 
 class UnitBackground(Effect):
     name = "unit_background"
-    stage = "optics"
+    acts_on = "optics"
     description = (
         "Each unit's no-contact frame differs from the one the simulator composites onto: "
         "the LED board and gel sit a little shifted and turned, and the coating's tint "
@@ -375,7 +374,7 @@ class UnitBackground(Effect):
 
 class GelWear(Effect):
     name = "gel_wear"
-    stage = "optics"
+    acts_on = "optics"
     description = (
         "A used gel carries dust specks and scratches in its coating that block light, and "
         "its centre, where most contacts land, has a thinner reflective coating that responds "

@@ -1,4 +1,4 @@
-"""Pose-stage effects: the real contact is not the commanded one."""
+"""Effects acting on the pose: the real contact is not the commanded one."""
 
 from __future__ import annotations
 
@@ -8,15 +8,8 @@ from typing import Any
 
 import torch
 
-from tactile_bench.effects.base import (
-    Draw,
-    Effect,
-    EffectContext,
-    Param,
-    ParamValue,
-    as_tensor,
-    randn,
-)
+from tactile_bench.effects.base import Draw, Effect, EffectContext, Param, ParamValue, as_tensor
+from tactile_bench.effects.draws import randn
 
 
 def _with(poses: Any, **changes: torch.Tensor) -> Any:
@@ -28,7 +21,7 @@ def _with(poses: Any, **changes: torch.Tensor) -> Any:
 
 class PoseError(Effect):
     name = "pose_error"
-    stage = "pose"
+    acts_on = "pose"
     stochastic = True
     description = (
         "The object is not where the robot was told to put it. Fixturing and hand-eye "
@@ -72,7 +65,7 @@ class PoseError(Effect):
 
 class PressDepthError(Effect):
     name = "press_error"
-    stage = "pose"
+    acts_on = "pose"
     stochastic = True
     description = (
         "Force control, not position control, sets how far a real object sinks into the gel: "

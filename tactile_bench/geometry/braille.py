@@ -2,7 +2,7 @@
 
 Higuera et al. 3D-printed each character (A-Z and the number sign ``#``) as a 2 x 2 x 1 cm
 block with one braille cell on top and pressed a DIGIT onto it. We build the same blocks as
-watertight triangle meshes so that the sensor stage can ray-cast them into height fields.
+watertight triangle meshes so that the sensor layer can ray-cast them into height fields.
 """
 
 from __future__ import annotations

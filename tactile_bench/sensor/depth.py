@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.effects.base import area_pool
+from tactile_bench.effects.kernels import area_pool
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
 from tactile_bench.sensor.heightfield import HeightFieldBank

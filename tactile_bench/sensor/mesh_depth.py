@@ -40,7 +40,7 @@ import torch
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.heightfield import embree_available
-from tactile_bench.sensor.timing import stage as timed
+from tactile_bench.sensor.timing import timed_span
 
 
 def _pixel_grid(gel: GelSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -209,7 +209,7 @@ class MeshDepthRenderer:
 
     def render_height(self, poses: np.ndarray | torch.Tensor) -> torch.Tensor:
         """Signed height (N, 1, S*os, S*os) float32 mm, positive inside the gel."""
-        with timed("height"):
+        with timed_span("height"):
             return self._render_height(poses)
 
     def _render_height(
@@ -237,7 +237,7 @@ class MeshDepthRenderer:
         keep = np.zeros((side, side), dtype=bool)
         keep[step // 2 :: step, step // 2 :: step] = True
         keep = keep.ravel()
-        with timed("height.peak"):
+        with timed_span("height.peak"):
             h = self._render_height(poses, self._xs[keep], self._ys[keep])
         return h.flatten(1).amax(1).numpy().astype(np.float64)
 
@@ -256,7 +256,7 @@ class MeshDepthRenderer:
             # object-frame ray origins: R @ local + t, as one BLAS matmul per chunk
             origins = np.matmul(local[None], rot.transpose(0, 2, 1)) + trans[:, None, :]
             dirs = np.repeat(rot[:, :, 2], n_pix, axis=0)
-            with timed("height.rays"):
+            with timed_span("height.rays"):
                 dist = self._cast(origins.reshape(-1, 3), dirs)
             height = self.reach_mm - dist  # z_hit = dist - reach; height = -z_hit
             height[~np.isfinite(height)] = -self.reach_mm
@@ -294,7 +294,7 @@ class MeshDepthRenderer:
                 row += base[:, c, None]
                 origins[:, :, c] = row
                 dirs[:, :, c] = r32[:, c, 2, None]
-            with timed("height.rays"):
+            with timed_span("height.rays"):
                 dist = scene.run(
                     origins.reshape(-1, 3),
                     dirs.reshape(-1, 3),

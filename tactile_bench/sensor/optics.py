@@ -23,7 +23,7 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.effects.base import replay_draws
+from tactile_bench.effects.draws import replay_draws
 from tactile_bench.sensor.depth import GelSpec
 
 _CHUNK = 16  # images per pass of ``SimOptics.render``: a multiple of 16 (see there)

@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from tactile_bench.effects.base import EffectContext, pixel_grid, surface_gradient
+from tactile_bench.effects.base import EffectContext
+from tactile_bench.effects.kernels import pixel_grid, surface_gradient
 from tactile_bench.effects.optics import (
     CONTACT_OFFSET_MM,
     _features,

@@ -1,9 +1,10 @@
 """The surrogate DIGIT: the "real" sensor of this project, built from named physical effects.
 
 No real sensor is at hand, so real data come from this model. It starts from the same contact
-geometry as the simulator and adds, stage by stage, the effects a real DIGIT shows and the
-simple simulator lacks (``tactile_bench.effects``). The order of the stages is part of the
-model and follows image formation:
+geometry as the simulator and adds, step by step, the effects a real DIGIT shows and the
+simple simulator lacks (``tactile_bench.effects``). The order of the steps is part of the
+model and follows image formation (the effects of a step are those that act on it,
+``Effect.acts_on``):
 
 1. **pose** (on ``Poses``): the real contact differs from the commanded one;
 2. ``render_height``: rigid signed height of the object at ``size * oversample``;
@@ -35,7 +36,9 @@ import torch
 import torch.nn.functional as F
 
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, get_effect
-from tactile_bench.effects.base import EffectContext, ParamValue, area_pool, replay_draws
+from tactile_bench.effects.base import ActsOn, EffectContext, ParamValue
+from tactile_bench.effects.draws import replay_draws
+from tactile_bench.effects.kernels import area_pool
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
@@ -44,7 +47,7 @@ from tactile_bench.sensor.background import GEL_MM, UNITS, digit_background
 from tactile_bench.sensor.depth import GelSpec, render_height
 from tactile_bench.sensor.heightfield import HeightFieldBank
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.timing import stage as timed
+from tactile_bench.sensor.timing import timed_span
 
 PROFILE_DIR = Path(__file__).with_name("profiles")
 NO_CONTACT_MM = 1.0  # object distance from the gel for the no-contact frame
@@ -198,13 +201,13 @@ class SurrogateDigit:
         return self._copy(effects, "")
 
     # ------------------------------------------------------------------ rendering
-    def _apply_stage(
-        self, stage: str, x: Any, generator: torch.Generator | None, ctx: EffectContext
+    def _apply_effects_on(
+        self, acts_on: ActsOn, x: Any, generator: torch.Generator | None, ctx: EffectContext
     ) -> Any:
         for n in self.effects_enabled:
             effect = EFFECTS[n]
-            if effect.stage == stage:
-                with timed(f"real.{stage}.{n}"):
+            if effect.acts_on == acts_on:
+                with timed_span(f"real.{acts_on}.{n}"):
                     x = effect.apply(x, self._effects[n], generator, ctx)
         return x
 
@@ -219,7 +222,7 @@ class SurrogateDigit:
         """Image (N, 3, S, S) 0..255 from a signed height or depth map (N, 1, H, W), mm.
 
         Entry point for callers without a braille bank (pretraining objects, a depth image
-        from elsewhere): stages 3-6 of the model. Any H, W works; ``gel.size`` sets S.
+        from elsewhere): steps 3-6 of the model. Any H, W works; ``gel.size`` sets S.
         """
         gel = gel or self.gel()
         if height.dim() != 4 or height.shape[1] != 1:
@@ -227,20 +230,20 @@ class SurrogateDigit:
                 f"render_surface: height must be (N, 1, H, W), got {tuple(height.shape)}"
             )
         ctx = EffectContext(gel.width_mm, gel.height_mm, stochastic, yaw_deg, self.sensor)
-        h = self._apply_stage("geometry", height.float(), generator, ctx)
-        with timed("real.resize"):
+        h = self._apply_effects_on("geometry", height.float(), generator, ctx)
+        with timed_span("real.resize"):
             surface = _resize(h.clamp(min=0.0), gel.size)
         bg = digit_background(gel.size, self.unit)
         # skipped when optical_response replaces it outright (it would be multiplied by 0)
-        with timed("real.sim_shading"):
+        with timed_span("real.sim_shading"):
             delta = None if self._sim_shading_replaced() else self._sim_delta(surface, bg, gel)
             scene = new_scene(surface, bg, delta)
-        scene = self._apply_stage("optics", scene, generator, ctx)
-        with timed("real.composite"):
+        scene = self._apply_effects_on("optics", scene, generator, ctx)
+        with timed_span("real.composite"):
             image = scene.composite()
         if image.shape[0] != surface.shape[0]:
             image = image.expand(surface.shape[0], -1, -1, -1)
-        image = self._apply_stage("camera", image, generator, ctx)
+        image = self._apply_effects_on("camera", image, generator, ctx)
         return image.clamp(0.0, 255.0)
 
     render_depth_image = render_surface
@@ -267,7 +270,7 @@ class SurrogateDigit:
     def background(self, size: int | GelSpec = 64) -> torch.Tensor:
         """This unit's no-contact frame (3, S, S), 0..255: no per-frame noise or slip.
 
-        Rendered through the same stages with nothing within ``NO_CONTACT_MM`` of the gel,
+        Rendered through the same steps with nothing within ``NO_CONTACT_MM`` of the gel,
         so per-unit effects (background, LEDs, wear, lens, tone curve, JPEG) show in it.
         """
         gel = size if isinstance(size, GelSpec) else self.gel(int(size))
@@ -310,8 +313,8 @@ class SurrogateDigit:
         parts = []
         for k in range(0, len(poses), chunk):
             sub = poses.index(slice(k, k + chunk))
-            sub = self._apply_stage("pose", sub, generator, ctx)
-            with timed("real.height"):
+            sub = self._apply_effects_on("pose", sub, generator, ctx)
+            with timed_span("real.height"):
                 height = render_height(bank, sub, gel)
             parts.append(self.render_surface(height, gel, generator, yaw_deg=sub.yaw_deg))
         if not parts:

@@ -1,9 +1,9 @@
-"""Opt-in stage timers for the simulation: where a dataset build spends its time.
+"""Opt-in timers of named spans of the simulation: where a dataset build spends its time.
 
-The renderers mark their stages with ``with stage("sim.optics"):``. Nothing is recorded
-(and the cost is one global lookup) unless a ``StageTimer`` is active, so the builders keep
-a single code path for measuring and for real work. Stages nest: a stage's time excludes
-the stages opened inside it, so the recorded times add up to the timed total.
+The renderers mark their spans with ``with timed_span("sim.optics"):``. Nothing is recorded
+(and the cost is one global lookup) unless a ``SpanTimer`` is active, so the builders keep
+a single code path for measuring and for real work. Spans nest: a span's time excludes
+the spans opened inside it, so the recorded times add up to the timed total.
 """
 
 from __future__ import annotations
@@ -14,13 +14,13 @@ from collections import defaultdict
 from collections.abc import Iterator
 from contextlib import AbstractContextManager, contextmanager
 
-_ACTIVE: StageTimer | None = None
+_ACTIVE: SpanTimer | None = None
 
 
-class StageTimer:
-    """Wall and CPU seconds per stage (exclusive of nested stages), while active.
+class SpanTimer:
+    """Wall and CPU seconds per span (exclusive of nested spans), while active.
 
-    CPU time is the calling thread's, so stages running concurrently in several Python
+    CPU time is the calling thread's, so spans running concurrently in several Python
     threads add up correctly; work a library hands to its own helper threads (torch's
     intra-op pool when it has more than one thread, Embree's scene build) is not counted.
     """
@@ -30,10 +30,10 @@ class StageTimer:
         self.cpu: dict[str, float] = defaultdict(float)
         self._local = threading.local()  # per thread: a stack of [child wall, child cpu]
         self._lock = threading.Lock()
-        self._previous: StageTimer | None = None
+        self._previous: SpanTimer | None = None
         self.other_cpu = 0.0  # CPU seconds of other processes that reported here
 
-    def __enter__(self) -> StageTimer:
+    def __enter__(self) -> SpanTimer:
         global _ACTIVE
         self._previous, _ACTIVE = _ACTIVE, self
         return self
@@ -43,7 +43,7 @@ class StageTimer:
         _ACTIVE = self._previous
 
     @contextmanager
-    def _stage(self, name: str) -> Iterator[None]:
+    def _span(self, name: str) -> Iterator[None]:
         stack = self._local.__dict__.setdefault("stack", [])
         stack.append([0.0, 0.0])
         w0, c0 = time.perf_counter(), time.thread_time()
@@ -62,7 +62,7 @@ class StageTimer:
     def merge(
         self, wall: dict[str, float], cpu: dict[str, float], process_cpu: float = 0.0
     ) -> None:
-        """Add stage times recorded elsewhere (e.g. by a worker process, whose whole CPU
+        """Add span times recorded elsewhere (e.g. by a worker process, whose whole CPU
         time ``process_cpu`` goes to ``other_cpu``: the parent's clock does not see it)."""
         with self._lock:
             self.other_cpu += process_cpu
@@ -72,8 +72,8 @@ class StageTimer:
                 self.cpu[name] += seconds
 
 
-def active_timer() -> StageTimer | None:
-    """The ``StageTimer`` now recording, if any (worker processes report back to it)."""
+def active_timer() -> SpanTimer | None:
+    """The ``SpanTimer`` now recording, if any (worker processes report back to it)."""
     return _ACTIVE
 
 
@@ -82,7 +82,7 @@ def _nothing() -> Iterator[None]:
     yield
 
 
-def stage(name: str) -> AbstractContextManager[None]:
-    """Context manager timing ``name`` on the active ``StageTimer``; a no-op without one."""
+def timed_span(name: str) -> AbstractContextManager[None]:
+    """Context manager timing span ``name`` on the active ``SpanTimer``; a no-op without one."""
     timer = _ACTIVE
-    return timer._stage(name) if timer is not None else _nothing()
+    return timer._span(name) if timer is not None else _nothing()
