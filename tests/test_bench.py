@@ -32,6 +32,8 @@ TINY = BenchConfig.quick_preset(
     train_steps=1,
     epoch_sizes={"translator": (8, 16, 32), "classifier": (20, 40, 80)},
     fit_steps=2,
+    jpeg_images=2,
+    jpeg_native_images=1,
     translator_overrides={
         "diffusion": TINY_DIFFUSION,
         "cgan": {"batch_size": 4, "generator_channels": 4, "discriminator_channels": 4},
@@ -132,6 +134,7 @@ def test_full_tiny_run_covers_every_section(tmp_path: Path) -> None:
     assert "OpenMP" in md
     assert "Contact simulation" in md and "linearity" in md and "Training throughput" in md
     assert "worker start-up" in md and "marginal rate" in md and "per CPU-s" in md
+    assert r["jpeg"]["headline"] == "effect" and "JPEG codecs" in md and "**Verdict**" in md
 
 
 def test_ratios_are_computed_from_the_measured_times(result: tuple[dict, Path]) -> None:

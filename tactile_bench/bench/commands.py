@@ -46,7 +46,8 @@ def register(subparsers: Any) -> None:
         description="Write bench.json and bench.md: --help of every command in a fresh "
         "process, simulation contacts/s, a sampler speed/"
         "quality table against the paper's DDPM-500, training throughput (fp32 / bf16 / "
-        "channels_last), cost at 1x/2x/4x work, peak memory. Use the global --threads to "
+        "channels_last), cost at 1x/2x/4x work, peak memory, our differentiable JPEG against "
+        "kornia's (libjpeg the reference). Use the global --threads to "
         "pin torch threads (default: torch's choice).",
     )
     p.add_argument("--quick", action="store_true", help="smaller samples: under 5 minutes")
@@ -67,8 +68,8 @@ def register(subparsers: Any) -> None:
         "--only",
         nargs="*",
         metavar="SECTION",
-        help="startup, simulation, sampling, threads, training, scaling (default: all; "
-        "the simulation's 1x/2x/4x rows come with simulation)",
+        help="startup, simulation, sampling, threads, training, scaling, jpeg (default: "
+        "all; the simulation's 1x/2x/4x rows come with simulation)",
     )
     p.add_argument("--repeats", type=int, help="timed repetitions per figure")
     p.add_argument("--ddpm-images", type=int, help="test contacts sampled by DDPM-500")

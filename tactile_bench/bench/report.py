@@ -431,6 +431,62 @@ def _startup(r: dict[str, Any]) -> list[str]:
     return lines + _table(["command", "wall s"], rows)
 
 
+def _jpeg(r: dict[str, Any]) -> list[str]:
+    """Ours against kornia's differentiable JPEG, libjpeg the reference (issue 20)."""
+    j = r["jpeg"]
+    fr = j["frames"]
+    settings = "; ".join(f"`{k}`: {v['what']}" for k, v in j["settings"].items())
+    lines = [
+        "## JPEG codecs: ours against kornia's, libjpeg the reference",
+        "",
+        f"Frames: {fr['source']} ({fr['stored']} stored, {fr['native']} native). Settings: "
+        f"{settings}. Ours is `jpeg_approx`, kornia's `jpeg_codec_differentiable` "
+        f"{j['kornia']} (0..1 in, scaled from 0..255), libjpeg Pillow's encode and decode; "
+        "in the `effect` setting kornia and libjpeg get the same bilinear upsampling and "
+        f"area averaging that ours folds into its matrices. {j['kornia_padding']}. "
+        f"Ours and kornia's run in chunks of {j['chunk']} images with {j['threads']} torch "
+        "thread(s), libjpeg frame by frame on one; img/s are medians of "
+        f"{j['repeats']} repetition(s) after a warm-up. Errors are of each codec's output "
+        "against libjpeg's on the same frames, in grey levels 0..255 (MAE) and dB (PSNR); "
+        "`MAE vs input` is how far the codec moves the frame, libjpeg's being the scale "
+        "to judge the others' errors by.",
+        "",
+    ]
+    rows = [
+        [
+            f"`{row['setting']}`",
+            row["quality"],
+            row["codec"],
+            _f(row["images_per_s"], 1),
+            _f(row["fwd_bwd_images_per_s"], 1),
+            _f(row["mae_vs_libjpeg"], 3),
+            "identical" if row["psnr_vs_libjpeg"] is None else _f(row["psnr_vs_libjpeg"], 1),
+            _f(row["max_abs_vs_libjpeg"], 1),
+            _f(row["mae_vs_input"], 2),
+        ]
+        for row in j["rows"]
+    ]
+    lines += _table(
+        [
+            "setting",
+            "quality",
+            "codec",
+            "img/s fwd",
+            "img/s fwd+bwd",
+            "MAE vs libjpeg",
+            "PSNR vs libjpeg (dB)",
+            "max abs vs libjpeg",
+            "MAE vs input",
+        ],
+        rows,
+    )
+    verdicts = j.get("verdicts", {})
+    if j.get("headline") in verdicts:
+        lines += [f"**Verdict** (`{j['headline']}` setting): {verdicts[j['headline']]}", ""]
+    others = [f"- `{k}`: {v}" for k, v in verdicts.items() if k != j.get("headline")]
+    return lines + ([*others, ""] if others else [])
+
+
 def render_markdown(r: dict[str, Any]) -> str:
     """The whole bench.md for a result dict of ``run_bench``."""
     lines = _machine(r)
@@ -446,4 +502,6 @@ def render_markdown(r: dict[str, Any]) -> str:
         lines += _training(r)
     if "scaling" in r:
         lines += _scaling(r)
+    if "jpeg" in r:
+        lines += _jpeg(r)
     return "\n".join(lines).rstrip() + "\n"

@@ -2,7 +2,8 @@
 
 One run measures, side by side: contact simulation, diffusion sampling (every sampler and
 step count against the paper's 500-step DDPM, on the same network and contacts), training
-throughput (fp32 / bf16 / channels_last), cost at 1x / 2x / 4x the work, and peak memory.
+throughput (fp32 / bf16 / channels_last), cost at 1x / 2x / 4x the work, peak memory, and
+our differentiable JPEG against kornia's with libjpeg the reference.
 The machine is shared and noisy, so headline figures are ratios of measurements taken in
 the same run; medians of several repetitions after a warm-up (see ``bench.timing``).
 """
@@ -27,7 +28,7 @@ from typing import Any
 import torch
 
 from tactile_bench import allocator
-from tactile_bench.bench import sampling, simulation, startup, training
+from tactile_bench.bench import jpeg, sampling, simulation, startup, training
 from tactile_bench.bench.report import render_markdown
 from tactile_bench.bench.threads import thread_settings
 from tactile_bench.bench.timing import torch_threads
@@ -42,7 +43,7 @@ from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
 from tactile_bench.translators.diffusion import DiffusionConfig, DiffusionTranslator
 
-SECTIONS = ("startup", "simulation", "sampling", "threads", "training", "scaling")
+SECTIONS = ("startup", "simulation", "sampling", "threads", "training", "scaling", "jpeg")
 # inference settings the bench applies to a loaded checkpoint: the shipped defaults
 INFERENCE_KEYS = ("sampler", "steps", "sample_batch_size", "precision", "channels_last")
 # what the default sampler must reach (issue 8): vs DDPM-500 measured in the same run
@@ -78,6 +79,9 @@ class BenchConfig:
     fit_steps: int = 200
     fit_lr: float = 5e-4
     translator_overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
+    jpeg_images: int = 32
+    jpeg_native_images: int = 8
+    jpeg_qualities: tuple[int, ...] = jpeg.QUALITIES
 
     @classmethod
     def full(cls, **kw: Any) -> BenchConfig:
@@ -104,6 +108,8 @@ class BenchConfig:
             train_steps=3,
             epoch_sizes={"translator": (32, 64, 128), "classifier": (120, 240, 480)},
             fit_steps=40,
+            jpeg_images=16,
+            jpeg_native_images=4,
         )
         values.update(kw)
         return cls(**values)
@@ -379,6 +385,17 @@ def run_bench(
                 },
                 "epoch": epochs,
             }
+        if "jpeg" in sections:
+            result["jpeg"] = step(
+                "JPEG codecs: ours, kornia's, libjpeg",
+                lambda: jpeg.jpeg_section(
+                    cfg.jpeg_images,
+                    cfg.jpeg_native_images,
+                    cfg.jpeg_qualities,
+                    cfg.repeats,
+                    cfg.seed,
+                ),
+            )
     result["loadavg_end"] = _loadavg()
     result["wall_s"] = round(time.perf_counter() - started, 1)
     out = Path(out_dir)
