@@ -431,6 +431,8 @@ def main(args: list[str] | None = None) -> int:
     # Freed tensor memory stays in the process for the next tensor instead of being faulted
     # in afresh (tactile_bench.allocator: ~8% more braille contacts/s on two threads).
     keep_freed_memory()
+    if sys.stdout is None:  # started with stdout closed (``cmd >&-``): print goes nowhere
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - lives as long as the process
     for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 prints escaped
         reconfigure = getattr(stream, "reconfigure", None)
         if reconfigure is not None:

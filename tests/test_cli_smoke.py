@@ -83,3 +83,19 @@ def test_a_reader_that_leaves_early_is_not_an_error(argv: list[str]) -> None:
     proc.stdout.close()  # closed long before the process has imported anything
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 0 and b"Traceback" not in err and b"BrokenPipe" not in err
+
+
+def test_a_closed_stdout_is_not_an_error() -> None:
+    """``list effects >&-``: Python starts with ``sys.stdout`` None; the listing goes nowhere."""
+    import os
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "tactile_bench", "list", "effects"],
+        stdout=None,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: os.close(1),
+        timeout=120,
+    )
+    assert proc.returncode == 0 and b"Traceback" not in proc.stderr, proc.stderr.decode()
