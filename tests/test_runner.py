@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from tactile_bench.pipeline import stages as stage_registry
@@ -85,6 +88,35 @@ def test_run_json_records_stages(recipe_path: Path, tmp_path: Path) -> None:
     run_recipe(load_recipe(recipe_path))
     text = (tmp_path / "run" / "run.json").read_text()
     assert '"a"' in text and '"wall_time_s"' in text
+
+
+def _allocate(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+    block = np.ones(ctx.config.value * 2**20 // 8)  # value MiB, touched
+    (ctx.directory / "out.txt").write_text(str(int(block[0])))
+    return {"out": "out.txt"}, {}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="VmHWM is in Linux's /proc")
+def test_each_stage_records_its_own_peak_memory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(
+        stage_registry.STAGES,
+        "allocate",
+        StageKind("allocate", "test stage", CountConfig, _allocate, {}),
+    )
+    path = tmp_path / "m.yaml"
+    path.write_text(
+        f"name: m\nrun_dir: {tmp_path / 'run'}\nstages:\n"
+        "  - {name: big, kind: allocate, config: {value: 300}}\n"
+        "  - {name: small, kind: allocate, config: {value: 1}}\n"
+    )
+    results = {r.name: r for r in run_recipe(load_recipe(path))}
+    big, small = results["big"].peak_rss_mib, results["small"].peak_rss_mib
+    assert big is not None and small is not None
+    assert big - small > 200  # the small stage after the big one is not charged its peak
+    stages = json.loads((tmp_path / "run" / "run.json").read_text())["stages"]
+    assert [s["peak_rss_mib"] for s in stages] == [big, small]
 
 
 def test_no_progress_reaches_lightning_without_changing_keys(

@@ -196,6 +196,7 @@ def run_record(recipe: Any, results: list[Any], hasher: InputHasher) -> dict[str
                 "config": config,
                 "outputs": manifest.get("outputs", {}),
                 "wall_time_s": result.wall_time_s,
+                "peak_rss_mib": result.peak_rss_mib,
                 "cached": result.cached,
                 "resumed_from_step": result.metrics.get("resumed_from_step"),
                 "compute_precision": result.metrics.get("compute_precision"),

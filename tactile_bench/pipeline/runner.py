@@ -22,6 +22,7 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.outputs import OutputLock, check_output_dir
 from tactile_bench.hardware import resolve_precision, trainer_device
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
+from tactile_bench.pipeline.memory import peak_rss_mib, reset_peak_rss
 from tactile_bench.pipeline.provenance import InputHasher, run_record
 from tactile_bench.pipeline.recipe import Recipe, Stage
 from tactile_bench.pipeline.stages.base import StageContext, StageResult
@@ -80,6 +81,7 @@ def read_done(directory: Path) -> StageResult | None:
             metrics=manifest["metrics"],
             manifest_hash=json_sha256(manifest["outputs"]),
             wall_time_s=manifest["wall_time_s"],
+            peak_rss_mib=manifest.get("peak_rss_mib"),
             cached=True,
         )
     except (OSError, ValueError, KeyError, TypeError):
@@ -88,7 +90,12 @@ def read_done(directory: Path) -> StageResult | None:
 
 
 def _finish(
-    stage: Stage, directory: Path, outputs: dict[str, str], metrics: dict[str, Any], wall: float
+    stage: Stage,
+    directory: Path,
+    outputs: dict[str, str],
+    metrics: dict[str, Any],
+    wall: float,
+    peak_mib: float | None = None,
 ) -> StageResult:
     listed = {}
     for name, rel in outputs.items():
@@ -105,11 +112,19 @@ def _finish(
         "outputs": listed,
         "metrics": metrics,
         "wall_time_s": round(wall, 3),
+        "peak_rss_mib": None if peak_mib is None else round(peak_mib, 1),
         "version": tactile_bench.__version__,
     }
     atomic_write_json(directory / DONE, manifest)
     return StageResult(
-        stage.name, stage.kind.name, directory, outputs, metrics, json_sha256(listed), wall
+        stage.name,
+        stage.kind.name,
+        directory,
+        outputs,
+        metrics,
+        json_sha256(listed),
+        wall,
+        peak_rss_mib=peak_mib,
     )
 
 
@@ -189,10 +204,17 @@ def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[
                 progress,
                 previous=list(results.values()),
             )
+            reset_peak_rss()
             start = time.perf_counter()
             outputs, metrics = _run_stage(stage, ctx)
-            result = _finish(stage, directory, outputs, metrics, time.perf_counter() - start)
-            log.info("stage %s: done in %.1f s", stage.name, result.wall_time_s)
+            wall = time.perf_counter() - start
+            result = _finish(stage, directory, outputs, metrics, wall, peak_rss_mib())
+            log.info(
+                "stage %s: done in %.1f s%s",
+                stage.name,
+                result.wall_time_s,
+                "" if result.peak_rss_mib is None else f", peak RSS {result.peak_rss_mib:.0f} MiB",
+            )
         _publish(result, stage.kind.publish, recipe.run_dir)
         results[stage.name] = result
     atomic_write_json(

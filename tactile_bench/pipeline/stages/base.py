@@ -55,6 +55,7 @@ class StageResult:
     manifest_hash: str
     wall_time_s: float
     cached: bool = False
+    peak_rss_mib: float | None = None  # this process's peak while the stage ran (Linux)
 
     def path(self, output: str) -> Path:
         """Absolute path of a named output file."""
