@@ -1,33 +1,20 @@
-"""Each stage's peak memory: the kernel's high-water mark of this process, reset per stage.
+"""The run's peak memory at the end of each stage: the stage that raised it reached it.
 
-A whole run's peak (``/usr/bin/time -v``) does not say which stage reached it. Linux keeps a
-resident-set high-water mark per process (``VmHWM`` in ``/proc/self/status``) that writing
-``5`` to ``/proc/self/clear_refs`` resets (proc(5)), so the runner resets it before a stage
-and reads it after. Elsewhere both calls do nothing and the peak is None. Worker processes a
-stage spawns (``parallel_seeds``) are not counted: each has its own mark.
+A whole run's peak (``/usr/bin/time -v``) does not say which stage reached it. The process's
+resident-set high-water mark (``ru_maxrss``) never comes down, so the runner reads it after
+every stage: the stage after which it rose is the one that set the new peak, and the last
+stage's figure is the run's peak. (Linux can reset the mark through /proc/self/clear_refs,
+but that would also hide the run's true peak from ``/usr/bin/time``, so it is not done.)
+Worker processes a stage spawns (``parallel_seeds``) have marks of their own, not counted.
 """
 
 from __future__ import annotations
 
-from contextlib import suppress
-from pathlib import Path
-
-_CLEAR_REFS = Path("/proc/self/clear_refs")
-_STATUS = Path("/proc/self/status")
+import resource
+import sys
 
 
-def reset_peak_rss() -> None:
-    """Start a new high-water mark at the current resident set size (Linux only)."""
-    with suppress(OSError):
-        _CLEAR_REFS.write_text("5")
-
-
-def peak_rss_mib() -> float | None:
-    """The resident-set high-water mark since the last reset, in MiB (None off Linux)."""
-    try:
-        for line in _STATUS.read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024  # the kernel reports kB
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
+def peak_rss_mib() -> float:
+    """This process's resident-set high-water mark so far, in MiB."""
+    scale = 1 if sys.platform == "darwin" else 1024  # macOS reports bytes, Linux KiB
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale / 2**20

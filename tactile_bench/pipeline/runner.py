@@ -22,7 +22,7 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.outputs import OutputLock, check_output_dir
 from tactile_bench.hardware import resolve_precision, trainer_device
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
-from tactile_bench.pipeline.memory import peak_rss_mib, reset_peak_rss
+from tactile_bench.pipeline.memory import peak_rss_mib
 from tactile_bench.pipeline.provenance import InputHasher, run_record
 from tactile_bench.pipeline.recipe import Recipe, Stage
 from tactile_bench.pipeline.stages.base import StageContext, StageResult
@@ -204,16 +204,15 @@ def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[
                 progress,
                 previous=list(results.values()),
             )
-            reset_peak_rss()
             start = time.perf_counter()
             outputs, metrics = _run_stage(stage, ctx)
             wall = time.perf_counter() - start
             result = _finish(stage, directory, outputs, metrics, wall, peak_rss_mib())
             log.info(
-                "stage %s: done in %.1f s%s",
+                "stage %s: done in %.1f s (run's peak RSS so far %.0f MiB)",
                 stage.name,
                 result.wall_time_s,
-                "" if result.peak_rss_mib is None else f", peak RSS {result.peak_rss_mib:.0f} MiB",
+                result.peak_rss_mib,
             )
         _publish(result, stage.kind.publish, recipe.run_dir)
         results[stage.name] = result

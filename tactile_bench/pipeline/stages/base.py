@@ -55,7 +55,7 @@ class StageResult:
     manifest_hash: str
     wall_time_s: float
     cached: bool = False
-    peak_rss_mib: float | None = None  # this process's peak while the stage ran (Linux)
+    peak_rss_mib: float | None = None  # the run's peak RSS at the end of the stage
 
     def path(self, output: str) -> Path:
         """Absolute path of a named output file."""
