@@ -115,7 +115,7 @@ def test_full_tiny_run_covers_every_section(tmp_path: Path) -> None:
     on_disk = json.loads((tmp_path / "bench.json").read_text())
     sim = on_disk["simulation"]
     assert sim["braille_contacts_per_s"] > 0 and sim["object_frames_per_s"] > 0
-    assert set(sim["braille"]["stages"]) == {"depth", "sim_image", "real_image"}
+    assert set(sim["braille"]["phases"]) == {"depth", "sim_image", "real_image"}
     assert {"translator:diffusion", "translator:cgan", "classifier"} <= set(r["training"])
     for rows in r["scaling"]["epoch"].values():
         assert list(rows) == ["1x", "2x", "4x"]
