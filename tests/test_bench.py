@@ -109,13 +109,31 @@ def test_training_table_names_the_cpu_its_bf16_figures_hold_for() -> None:
     assert "(auto)" not in "\n".join(_training(old))
 
 
+@pytest.mark.parametrize("name", ["bench.json", "bench_avx2.json"])
+def test_a_bench_json_with_the_old_stages_key_still_renders(name: str) -> None:
+    """The committed results carry the simulation phases under ``stages`` (the name before
+    issue 20); bench.md renders them, and the same as under the new key ``phases``."""
+    from tactile_bench.bench.report import render_markdown
+
+    old = json.loads((Path(__file__).resolve().parents[1] / "docs/results" / name).read_text())
+    assert "stages" in old["simulation"]["braille"]  # the file is as committed
+    md = render_markdown(old)
+    assert "Braille, cost per phase" in md and "Objects, cost per phase" in md
+    for phase in ("depth", "sim_image", "real_image"):
+        assert f"| {phase} |" in md
+    new = json.loads(json.dumps(old))
+    for section in ("braille", "objects"):
+        new["simulation"][section]["phases"] = new["simulation"][section].pop("stages")
+    assert render_markdown(new) == md
+
+
 @pytest.mark.slow
 def test_full_tiny_run_covers_every_section(tmp_path: Path) -> None:
     r = run_bench(TINY, out_dir=tmp_path, progress=False)
     on_disk = json.loads((tmp_path / "bench.json").read_text())
     sim = on_disk["simulation"]
     assert sim["braille_contacts_per_s"] > 0 and sim["object_frames_per_s"] > 0
-    assert set(sim["braille"]["stages"]) == {"depth", "sim_image", "real_image"}
+    assert set(sim["braille"]["phases"]) == {"depth", "sim_image", "real_image"}
     assert {"translator:diffusion", "translator:cgan", "classifier"} <= set(r["training"])
     for rows in r["scaling"]["epoch"].values():
         assert list(rows) == ["1x", "2x", "4x"]

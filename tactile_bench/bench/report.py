@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-_STAGE_ORDER = {"depth": 0, "sim_image": 1, "real_image": 2}
+_PHASE_ORDER = {"depth": 0, "sim_image": 1, "real_image": 2}
 NONLINEAR = 0.15  # |time(kx) / (k time(1x)) - 1| above this is called out as not linear
 
 
@@ -266,7 +266,10 @@ def _threads(r: dict[str, Any]) -> list[str]:
     ]
 
 
-def _stages(section: dict[str, Any], unit: str) -> list[str]:
+def _phases(section: dict[str, Any], unit: str) -> list[str]:
+    """The per-phase table; bench.json files written before the rename carry the phases
+    under ``stages``, and the committed results are read as they are."""
+    phases = section["phases"] if "phases" in section else section["stages"]
     rows = [
         [
             name,
@@ -275,9 +278,9 @@ def _stages(section: dict[str, Any], unit: str) -> list[str]:
             f"{100 * s['share']:.0f} %",
             _f(s["peak_mib"], 1),
         ]
-        for name, s in sorted(section["stages"].items(), key=lambda kv: _STAGE_ORDER.get(kv[0], 9))
+        for name, s in sorted(phases.items(), key=lambda kv: _PHASE_ORDER.get(kv[0], 9))
     ]
-    return _table(["stage", f"{unit}/s", f"ms per {unit[:-1]}", "share", "peak MiB"], rows)
+    return _table(["phase", f"{unit}/s", f"ms per {unit[:-1]}", "share", "peak MiB"], rows)
 
 
 def _simulation(r: dict[str, Any]) -> list[str]:
@@ -307,13 +310,13 @@ def _simulation(r: dict[str, Any]) -> list[str]:
         )
         + ".",
         "",
-        f"Braille, cost per stage ({b['contacts']} contacts):",
+        f"Braille, cost per phase ({b['contacts']} contacts):",
         "",
-        *_stages(b, "contacts"),
-        f"Objects, cost per stage ({o['frames']} frames; depth settles the press on the "
+        *_phases(b, "contacts"),
+        f"Objects, cost per phase ({o['frames']} frames; depth settles the press on the "
         "true and on the measured pose, as the builder does):",
         "",
-        *_stages(o, "frames"),
+        *_phases(o, "frames"),
     ]
 
 

@@ -1,14 +1,15 @@
 """Contact simulation throughput: braille contacts and pretraining-object frames per second.
 
-A contact costs three products, each timed on its own: the sim depth (what TACTO gives),
-the sim image (``SimOptics``) and the surrogate "real" image (``SurrogateDigit``). The
-headline figure is the end-to-end builder the pipeline runs (``render_braille_set`` for
-braille, ``build_ycb_slide_standin`` for the objects, shard writing included), at 1x, 2x
-and 4x the work so a non-linear cost shows. One-off set-up (the braille height-field bank,
-an object's mesh, ray-casting scene and trajectories) is timed apart: it does not grow
-with the number of contacts.
+A contact costs three products, each timed on its own as a phase (result key ``phases``;
+"stage" means a recipe stage only): ``depth``, the sim depth (what TACTO gives),
+``sim_image`` (``SimOptics``) and ``real_image``, the surrogate "real" image
+(``SurrogateDigit``). The headline figure is the end-to-end builder the pipeline runs
+(``render_braille_set`` for braille, ``build_ycb_slide_standin`` for the objects, shard
+writing included), at 1x, 2x and 4x the work so a non-linear cost shows. One-off set-up
+(the braille height-field bank, an object's mesh, ray-casting scene and trajectories) is
+timed apart: it does not grow with the number of contacts.
 
-The stages are timed on one torch thread, as the builders run them (one Python thread or
+The phases are timed on one torch thread, as the builders run them (one Python thread or
 one worker process per core, torch single-threaded in each): their rates are per core.
 Objects are built at least at the size of one object of the default corpus (800 frames at
 4x): a build pays each object's set-up (meshes, exposed surface, trajectories, ray-casting
@@ -60,7 +61,7 @@ def _poses(n: int) -> Poses:
 
 
 def braille(n: int, repeats: int, profile: str = "digit") -> dict[str, Any]:
-    """Per-stage cost and end-to-end contacts/s of braille contacts, at 1x, 2x, 4x ``n``."""
+    """Per-phase cost and end-to-end contacts/s of braille contacts, at 1x, 2x, 4x ``n``."""
     gel = GelSpec()
     setup = measure(lambda: build_bank(CHARACTERS), work=len(CHARACTERS), repeats=1)
     bank = build_bank(CHARACTERS)
@@ -75,7 +76,7 @@ def braille(n: int, repeats: int, profile: str = "digit") -> dict[str, Any]:
         return torch.Generator().manual_seed(0)
 
     with torch_threads(1):  # as the builder runs them: one thread per core
-        stages = {
+        phases = {
             "depth": measure(lambda: to_depth(render_height(bank, poses, gel), gel), n, repeats),
             "sim_image": measure(lambda: optics.render(depth, sim_bg, gen(), gel), n, repeats),
             "real_image": measure(lambda: real.render(bank, poses, gel, gen()), n, repeats),
@@ -90,13 +91,13 @@ def braille(n: int, repeats: int, profile: str = "digit") -> dict[str, Any]:
             n * k,
             repeats,
         ).to_dict()
-    stage_total = sum(t.median_wall_s for t in stages.values())
+    phase_total = sum(t.median_wall_s for t in phases.values())
     return {
         "contacts": n,
         "setup_bank_s": setup.median_wall_s,
-        "stages": {
-            name: {**t.to_dict(), "share": t.median_wall_s / stage_total}
-            for name, t in stages.items()
+        "phases": {
+            name: {**t.to_dict(), "share": t.median_wall_s / phase_total}
+            for name, t in phases.items()
         },
         "scaling": scaling,
         "contacts_per_s": scaling[f"{SCALES[-1]}x"]["per_s"],
@@ -118,7 +119,7 @@ def objects(
     profile: str = "digit",
     amortised: int = AMORTISED_FRAMES,
 ) -> dict[str, Any]:
-    """Per-stage cost (``n`` frames) and end-to-end frames/s of the YCB-Slide stand-in.
+    """Per-phase cost (``n`` frames) and end-to-end frames/s of the YCB-Slide stand-in.
 
     The builds run at 1x, 2x, 4x of ``n`` frames an object, or of ``amortised / 4`` when
     that is more (0: exactly ``n``); the headline ``frames_per_s`` is the 4x build's.
@@ -144,7 +145,7 @@ def objects(
         return torch.Generator().manual_seed(0)
 
     with torch_threads(1):  # as each worker process runs them
-        stages = {
+        phases = {
             "depth": measure(depth, n, repeats),
             "sim_image": measure(lambda: optics.render(d, sim_bg, gen(), gel), n, repeats),
             "real_image": measure(lambda: real.render_surface(true_h, gel, gen()), n, repeats),
@@ -176,7 +177,7 @@ def objects(
                 first_build_s = time.perf_counter() - w0
             work = config.frames_per_trajectory * config.n_trajectories * len(object_names)
             scaling[f"{k}x"] = _measure_with_workers(build, work, repeats).to_dict()
-    stage_total = sum(t.median_wall_s for t in stages.values())
+    phase_total = sum(t.median_wall_s for t in phases.values())
     big, mid = scaling[f"{SCALES[-1]}x"], scaling[f"{SCALES[-2]}x"]
     extra = big["work"] - mid["work"]
     d_wall = big["median_wall_s"] - mid["median_wall_s"]
@@ -186,9 +187,9 @@ def objects(
         "objects": list(object_names),
         "setup_scene_s": setup.median_wall_s,
         "first_build_s": first_build_s,
-        "stages": {
-            name: {**t.to_dict(), "share": t.median_wall_s / stage_total}
-            for name, t in stages.items()
+        "phases": {
+            name: {**t.to_dict(), "share": t.median_wall_s / phase_total}
+            for name, t in phases.items()
         },
         "scaling": scaling,
         "marginal": {
