@@ -277,13 +277,26 @@ class FitReport:
     checkpoint: Path
 
 
+def _moments(x: torch.Tensor, chunk: int = 1 << 20) -> tuple[float, float]:
+    """Sum and sum of squares of ``x`` in float64, a chunk at a time.
+
+    A float64 copy of a whole training set and of its square (10.7k 64 x 64 RGB images:
+    0.9 GB each) would double a classifier stage's peak memory for a fingerprint.
+    """
+    total = squares = 0.0
+    for part in x.detach().reshape(-1).split(chunk):
+        p = part.double()
+        total += float(p.sum())
+        squares += float((p * p).sum())
+    return total, squares
+
+
 def fingerprint(*parts: Any) -> str:
     """Hash of what a checkpoint must agree with to be resumed (config, data, settings)."""
 
     def plain(x: Any) -> Any:
         if isinstance(x, torch.Tensor):
-            t = x.detach().double()
-            return ["tensor", list(x.shape), float(t.sum()), float((t * t).sum())]
+            return ["tensor", list(x.shape), *_moments(x)]
         if isinstance(x, Mapping):
             return {str(k): plain(v) for k, v in x.items()}
         if isinstance(x, list | tuple):

@@ -8,11 +8,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import torch
 
 from tactile_bench.pipeline import stages as stage_registry
 from tactile_bench.pipeline.recipe import load_recipe
 from tactile_bench.pipeline.runner import DONE, run_recipe
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.training import _moments, fingerprint
 from tests.test_pipeline_memory import allocate_above_peak
 
 CALLS: list[str] = []
@@ -138,3 +140,15 @@ def test_no_progress_reaches_lightning_without_changing_keys(
     again = run_recipe(load_recipe(recipe_path), progress=True)
     assert all(r.cached for r in again)  # same stage directories: progress is not in the key
     assert [r.directory for r in again] == [r.directory for r in quiet]
+
+
+def test_a_fingerprint_sees_one_changed_pixel_without_a_float64_copy_of_the_data() -> None:
+    x = torch.rand(300, 3, 64, 64)
+    y = x.clone()
+    y[123, 1, 7, 9] += 0.25
+    assert fingerprint("c", x) == fingerprint("c", x.clone())
+    assert fingerprint("c", x) != fingerprint("c", y)
+    total, squares = _moments(x, chunk=1000)  # many chunks: the same moments as one pass
+    exact = x.double()
+    assert abs(total - float(exact.sum())) < 1e-9 * float(exact.sum())
+    assert abs(squares - float((exact * exact).sum())) < 1e-9 * float((exact * exact).sum())
