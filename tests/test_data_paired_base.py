@@ -1,0 +1,131 @@
+"""``data.paired.Pairs``, the one base of the paired containers: its shape checks name the
+field, ``subset`` takes positions, masks and slices, ``foreground`` is the one formula."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import pytest
+import torch
+
+from tactile_bench.data.paired import Pairs
+from tactile_bench.data.pixels import image_to_foreground
+from tactile_bench.errors import TactileBenchError
+
+N, S = 5, 8
+
+
+@dataclass
+class Toy(Pairs):
+    """The smallest container: the base's fields, per-pair names and an optional sim."""
+
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"sim"})
+
+    depth: torch.Tensor
+    sim: torch.Tensor | None
+    real: torch.Tensor
+    sim_background: torch.Tensor
+    real_background: torch.Tensor
+    names: list[str]
+
+    def __post_init__(self) -> None:
+        self._check_pairs(names=self.names)
+
+    def _subset_own(self, index: torch.Tensor | slice) -> dict[str, Any]:
+        return {"names": [self.names[i] for i in self._positions(index)]}
+
+
+def _images(n: int = N, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return torch.randint(0, 256, (n, 3, S, S), generator=g, dtype=torch.uint8)
+
+
+def _toy(**changes: Any) -> Toy:
+    parts: dict[str, Any] = {
+        "depth": torch.arange(N, dtype=torch.float32)[:, None, None, None].expand(N, 1, S, S),
+        "sim": _images(seed=1),
+        "real": _images(seed=2),
+        "sim_background": torch.full((3, S, S), 100, dtype=torch.uint8),
+        "real_background": torch.full((3, S, S), 140, dtype=torch.uint8),
+        "names": [f"p{i}" for i in range(N)],
+    }
+    return Toy(**(parts | changes))
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "says"),
+    [
+        ("depth", torch.zeros(N, 3, S, S), "depth must be (N,1,S,S), got (5, 3, 8, 8)"),
+        ("depth", torch.zeros(N, S, S), "depth must be (N,1,S,S)"),
+        ("sim", torch.zeros(N, 3, S, 4), "sim must be (N,3,S,S) = (5, 3, 8, 8), got"),
+        ("real", torch.zeros(N - 1, 3, S, S), "real must be (N,3,S,S) = (5, 3, 8, 8), got"),
+        ("real", torch.zeros(N, 1, S, S), "real must be (N,3,S,S)"),
+        ("sim_background", torch.zeros(1, 3, S, S), "sim_background must be (3,S,S) = (3, 8, 8)"),
+        ("real_background", torch.zeros(3, 4, 4), "real_background must be (3,S,S)"),
+        ("names", ["a"], "names must have one entry a pair (N = 5), got 1"),
+        ("real", None, "real is missing (None)"),
+    ],
+)
+def test_shape_errors_name_the_field(field: str, value: Any, says: str) -> None:
+    with pytest.raises(TactileBenchError) as info:
+        _toy(**{field: value})
+    assert str(info.value).startswith(f"Toy: {field} ")
+    assert says in str(info.value)
+
+
+def test_optional_fields_may_be_none_and_say_so_when_asked_for() -> None:
+    toy = _toy(sim=None)
+    assert toy.subset([0, 1]).sim is None
+    with pytest.raises(TactileBenchError, match="Toy: no sim images in this set"):
+        toy.foreground("sim")
+
+
+def test_len_is_the_number_of_pairs() -> None:
+    assert len(_toy()) == N and len(_toy().subset(slice(0, 0))) == 0
+
+
+@pytest.mark.parametrize(
+    "idx",
+    [
+        [3, 1],
+        torch.tensor([3, 1]),
+        np.array([3, 1]),
+    ],
+)
+def test_subset_by_positions_keeps_their_order(idx: Any) -> None:
+    toy = _toy()
+    sub = toy.subset(idx)
+    assert isinstance(sub, Toy) and sub.names == ["p3", "p1"]
+    for name in ("depth", "sim", "real"):
+        assert torch.equal(getattr(sub, name), getattr(toy, name)[[3, 1]])
+    assert sub.real_background is toy.real_background  # frames are shared, not copied
+
+
+def test_subset_by_mask_and_by_slice() -> None:
+    toy = _toy()
+    mask = torch.tensor([True, False, True, False, True])
+    for idx in (mask, mask.numpy(), slice(0, None, 2)):
+        sub = toy.subset(idx)
+        assert sub.names == ["p0", "p2", "p4"]
+        assert torch.equal(sub.real, toy.real[[0, 2, 4]])
+        assert torch.equal(sub.depth[:, 0, 0, 0], torch.tensor([0.0, 2.0, 4.0]))
+
+
+def test_a_mask_of_the_wrong_length_is_an_error() -> None:
+    with pytest.raises(TactileBenchError, match=r"Toy.subset: a mask of shape \(4,\) for 5 pairs"):
+        _toy().subset(torch.ones(4, dtype=torch.bool))
+
+
+def test_foreground_is_the_one_formula() -> None:
+    toy = _toy()
+    for kind in ("sim", "real"):
+        want = image_to_foreground(
+            getattr(toy, kind).float(), getattr(toy, f"{kind}_background").float()
+        )
+        got = toy.foreground(kind)
+        assert got.dtype == torch.float32 and torch.equal(got, want)
+    assert torch.equal(toy.foreground(), toy.foreground("real"))
+    with pytest.raises(TactileBenchError, match="Toy.foreground: kind must be 'sim' or 'real'"):
+        toy.foreground("depth")  # type: ignore[arg-type]
