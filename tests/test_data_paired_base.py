@@ -4,15 +4,18 @@ field, ``subset`` takes positions, masks and slices, ``foreground`` is the one f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 import pytest
 import torch
 
+from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.paired import Pairs
 from tactile_bench.data.pixels import image_to_foreground
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.geometry import Poses
 
 N, S = 5, 8
 
@@ -129,3 +132,57 @@ def test_foreground_is_the_one_formula() -> None:
     assert torch.equal(toy.foreground(), toy.foreground("real"))
     with pytest.raises(TactileBenchError, match="Toy.foreground: kind must be 'sim' or 'real'"):
         toy.foreground("depth")  # type: ignore[arg-type]
+
+
+# ----------------------------------------------------------------------------- containers
+def _poses(n: int = N) -> Poses:
+    zeros = torch.zeros(n)
+    return Poses(torch.arange(n) % 3, zeros, zeros + 1, zeros + 2, torch.linspace(0.1, 0.5, n))
+
+
+def test_braille_set_subsets_and_foregrounds_through_the_base() -> None:
+    toy = _toy()
+    bset = BrailleSet(
+        toy.depth,
+        toy.sim,
+        toy.real,
+        _poses().labels,
+        _poses(),
+        toy.sim_background,
+        toy.real_background,
+    )
+    assert isinstance(bset, Pairs) and BrailleSet.subset is Pairs.subset
+    mask = torch.tensor([False, True, False, True, True])
+    for idx in (mask, [1, 3, 4], slice(1, None)):
+        sub = bset.subset(idx)
+        want = torch.tensor([1, 3, 4]) if not isinstance(idx, slice) else torch.arange(1, N)
+        assert torch.equal(sub.labels, bset.labels[want])
+        assert torch.equal(sub.poses.press_mm, bset.poses.press_mm[want])
+        assert torch.equal(sub.sim, bset.sim[want])
+    with pytest.raises(TactileBenchError, match=r"BrailleSet.subset: a mask of shape \(2,\)"):
+        bset.subset([True, False])
+    for kind in ("sim", "real"):
+        assert torch.equal(bset.foreground(kind), toy.foreground(kind))
+    with pytest.raises(TactileBenchError, match="BrailleSet: poses must have one entry a pair"):
+        BrailleSet(
+            toy.depth,
+            toy.sim,
+            toy.real,
+            _poses().labels,
+            _poses(2),
+            toy.sim_background,
+            toy.real_background,
+        )
+
+
+def test_braille_set_file_is_read_back_as_before(tmp_path: Path) -> None:
+    toy = _toy()
+    poses = _poses()
+    bset = BrailleSet(
+        toy.depth, toy.sim, toy.real, poses.labels, poses, toy.sim_background, toy.real_background
+    )
+    back = BrailleSet.load(bset.save(tmp_path / "set.npz")).subset([4, 0])
+    assert torch.equal(back.real, toy.real[[4, 0]]) and torch.equal(
+        back.labels, poses.labels[[4, 0]]
+    )
+    assert torch.equal(back.real_background, toy.real_background)
