@@ -13,6 +13,7 @@ import torch
 
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.paired import Pairs
+from tactile_bench.data.pairs import PairSet
 from tactile_bench.data.pixels import image_to_foreground
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry import Poses
@@ -186,3 +187,25 @@ def test_braille_set_file_is_read_back_as_before(tmp_path: Path) -> None:
         back.labels, poses.labels[[4, 0]]
     )
     assert torch.equal(back.real_background, toy.real_background)
+
+
+def test_pair_set_subsets_and_foregrounds_through_the_base() -> None:
+    toy = _toy()
+    frames = torch.stack([toy.real_background, toy.real_background // 2])  # (B,3,S,S)
+    which = torch.tensor([0, 1, 1, 0, 1])
+    pairs = PairSet(toy.depth, toy.real, frames, which, meta={"t": np.arange(N) * 10})
+    assert isinstance(pairs, Pairs) and PairSet.subset is Pairs.subset
+    for idx in (torch.tensor([False, True, True, False, False]), [1, 2], slice(1, 3)):
+        sub = pairs.subset(idx)
+        assert list(sub.meta["t"]) == [10, 20] and sub.real_bg_index.tolist() == [1, 1]
+        assert torch.equal(sub.real, toy.real[1:3]) and sub.sim is None
+    with pytest.raises(TactileBenchError, match=r"PairSet.subset: a mask of shape \(6,\)"):
+        pairs.subset(torch.ones(6, dtype=torch.bool))
+    want = image_to_foreground(toy.real.float(), frames[which].float())
+    assert torch.equal(pairs.foreground("real"), want)  # each pair on its own frame
+    with pytest.raises(TactileBenchError, match="PairSet: no sim images in this set"):
+        pairs.foreground("sim")
+    with pytest.raises(TactileBenchError, match=r"PairSet: real_background must be \(B,3,S,S\)"):
+        PairSet(toy.depth, toy.real, torch.zeros(2, 3, S, 4), which)
+    with pytest.raises(TactileBenchError, match="PairSet: meta 't' must have one entry a pair"):
+        PairSet(toy.depth, toy.real, frames, which, meta={"t": np.arange(3)})
