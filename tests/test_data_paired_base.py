@@ -15,6 +15,7 @@ from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.paired import Pairs
 from tactile_bench.data.pairs import PairSet
 from tactile_bench.data.pixels import image_to_foreground
+from tactile_bench.diagnose.paired import PairedData, from_braille_set
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry import Poses
 
@@ -209,3 +210,33 @@ def test_pair_set_subsets_and_foregrounds_through_the_base() -> None:
         PairSet(toy.depth, toy.real, torch.zeros(2, 3, S, 4), which)
     with pytest.raises(TactileBenchError, match="PairSet: meta 't' must have one entry a pair"):
         PairSet(toy.depth, toy.real, frames, which, meta={"t": np.arange(3)})
+
+
+def test_paired_data_subsets_and_foregrounds_through_the_base() -> None:
+    toy = _toy()
+    real_bg = toy.real_background.float()
+    data = PairedData(
+        toy.depth, toy.sim.float(), toy.real.float(), real_bg, None, list("abcde"), toy.names
+    )
+    assert isinstance(data, Pairs) and PairedData.subset is Pairs.subset
+    for idx in (torch.tensor([False, False, True, True, False]), [2, 3], slice(2, 4)):
+        sub = data.subset(idx)  # a mask selects (it was once read as positions 0 and 1)
+        assert sub.labels == ["c", "d"] and sub.names == ["p2", "p3"]
+        assert torch.equal(sub.sim, toy.sim[2:4].float()) and sub.gel_mm == data.gel_mm
+    assert torch.equal(data.foreground("real"), image_to_foreground(data.real, real_bg))
+    with pytest.raises(TactileBenchError, match="PairedData: no sim background in this set"):
+        data.foreground("sim")
+    with pytest.raises(TactileBenchError, match=r"PairedData: background must be \(3,S,S\)"):
+        PairedData(toy.depth, data.sim, data.real, real_bg[None], None, data.labels, data.names)
+    with pytest.raises(TactileBenchError, match="PairedData: names must have one entry a pair"):
+        PairedData(toy.depth, data.sim, data.real, real_bg, None, data.labels, ["x"])
+
+
+def test_a_braille_set_and_its_paired_data_have_the_same_foregrounds() -> None:
+    toy, poses = _toy(), _poses()
+    bset = BrailleSet(
+        toy.depth, toy.sim, toy.real, poses.labels, poses, toy.sim_background, toy.real_background
+    )
+    data = from_braille_set(bset, "ABC")
+    for kind in ("sim", "real"):
+        assert torch.equal(data.foreground(kind), bset.foreground(kind))
