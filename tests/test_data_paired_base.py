@@ -69,7 +69,7 @@ def _toy(**changes: Any) -> Toy:
         ("real", torch.zeros(N, 1, S, S), "real must be (N,3,S,S)"),
         ("sim_background", torch.zeros(1, 3, S, S), "sim_background must be (3,S,S) = (3, 8, 8)"),
         ("real_background", torch.zeros(3, 4, 4), "real_background must be (3,S,S)"),
-        ("names", ["a"], "names must have one entry a pair (N = 5), got 1"),
+        ("names", ["a"], "names must have one entry per pair (N = 5), got 1"),
         ("real", None, "real is missing (None)"),
     ],
 )
@@ -165,7 +165,7 @@ def test_braille_set_subsets_and_foregrounds_through_the_base() -> None:
         bset.subset([True, False])
     for kind in ("sim", "real"):
         assert torch.equal(bset.foreground(kind), toy.foreground(kind))
-    with pytest.raises(TactileBenchError, match="BrailleSet: poses must have one entry a pair"):
+    with pytest.raises(TactileBenchError, match="BrailleSet: poses must have one entry per pair"):
         BrailleSet(
             toy.depth,
             toy.sim,
@@ -208,7 +208,7 @@ def test_pair_set_subsets_and_foregrounds_through_the_base() -> None:
         pairs.foreground("sim")
     with pytest.raises(TactileBenchError, match=r"PairSet: real_background must be \(B,3,S,S\)"):
         PairSet(toy.depth, toy.real, torch.zeros(2, 3, S, 4), which)
-    with pytest.raises(TactileBenchError, match="PairSet: meta 't' must have one entry a pair"):
+    with pytest.raises(TactileBenchError, match="PairSet: meta 't' must have one entry per pair"):
         PairSet(toy.depth, toy.real, frames, which, meta={"t": np.arange(3)})
 
 
@@ -228,7 +228,7 @@ def test_paired_data_subsets_and_foregrounds_through_the_base() -> None:
         data.foreground("sim")
     with pytest.raises(TactileBenchError, match=r"PairedData: background must be \(3,S,S\)"):
         PairedData(toy.depth, data.sim, data.real, real_bg[None], None, data.labels, data.names)
-    with pytest.raises(TactileBenchError, match="PairedData: names must have one entry a pair"):
+    with pytest.raises(TactileBenchError, match="PairedData: names must have one entry per pair"):
         PairedData(toy.depth, data.sim, data.real, real_bg, None, data.labels, ["x"])
 
 

@@ -74,7 +74,7 @@ class Pairs:
         for name, value in (counted | also).items():
             if value is not None and len(value) != n:
                 raise TactileBenchError(
-                    f"{owner}: {name} must have one entry a pair (N = {n}), got {len(value)}"
+                    f"{owner}: {name} must have one entry per pair (N = {n}), got {len(value)}"
                 )
 
     def _field(self, name: str) -> Any:

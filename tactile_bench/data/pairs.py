@@ -61,7 +61,7 @@ class PairSet(Pairs):
         n, size = len(self), tuple(self.depth.shape[2:])
         bgs = self.real_background
         if bgs.dim() != 4 or tuple(bgs.shape[1:]) != (3, *size):
-            raise shape_error("PairSet", "real_background", "(B,3,S,S)", bgs.shape)
+            raise shape_error(type(self).__name__, "real_background", "(B,3,S,S)", bgs.shape)
         if n and (self.real_bg_index.min() < 0 or self.real_bg_index.max() >= len(bgs)):
             raise TactileBenchError("PairSet: real_bg_index outside the backgrounds")
         if not torch.isfinite(self.depth).all():
