@@ -13,13 +13,14 @@ import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from tactile_bench.data.pixels import image_to_foreground, to_uint8
+from tactile_bench.data.paired import Pairs
+from tactile_bench.data.pixels import to_uint8
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.geometry.contacts import (
@@ -57,11 +58,15 @@ class RealSensor(Protocol):
 
 
 @dataclass
-class BrailleSet:
+class BrailleSet(Pairs):
     """N contacts: sim depth (N,1,S,S) mm, sim and real images (N,3,S,S) uint8, and poses.
 
     ``labels`` index the character tuple the set was built with (``CHARACTERS`` by default).
+    One sim and one real no-contact frame (3,S,S) serve every contact; shape checks,
+    ``subset`` and ``foreground`` are ``data.paired.Pairs``'s.
     """
+
+    PER_PAIR: ClassVar[tuple[str, ...]] = ("depth", "sim", "real", "labels")
 
     depth: torch.Tensor
     sim: torch.Tensor
@@ -72,44 +77,10 @@ class BrailleSet:
     real_background: torch.Tensor
 
     def __post_init__(self) -> None:
-        n = len(self.labels)
-        if not all(len(x) == n for x in (self.depth, self.sim, self.real, self.poses)):
-            raise TactileBenchError("BrailleSet: depth, sim, real, labels and poses differ in N")
-        if self.depth.dim() != 4 or self.depth.shape[1] != 1:
-            raise TactileBenchError(f"BrailleSet: depth must be (N,1,S,S), got {self.depth.shape}")
-        for name in ("sim", "real"):
-            if getattr(self, name).shape[1:] != (3, *self.depth.shape[2:]):
-                raise TactileBenchError(f"BrailleSet: {name} must be (N,3,S,S) like depth")
-        for name in ("sim_background", "real_background"):
-            if getattr(self, name).shape != (3, *self.depth.shape[2:]):
-                raise TactileBenchError(f"BrailleSet: {name} must be (3,S,S)")
+        self._check_pairs(poses=self.poses)
 
-    def __len__(self) -> int:
-        return len(self.labels)
-
-    def foreground(self, kind: Literal["sim", "real"]) -> torch.Tensor:
-        """(image - background) / 255 + 0.5 as float32 (N,3,S,S): the models' input."""
-        if kind not in ("sim", "real"):
-            raise TactileBenchError(
-                f"BrailleSet.foreground: kind must be 'sim' or 'real', not {kind!r}"
-            )
-        image, background = getattr(self, kind), getattr(self, f"{kind}_background")
-        return image_to_foreground(image.float(), background.float())
-
-    def subset(self, idx: torch.Tensor | slice | Sequence[int]) -> BrailleSet:
-        """The contacts at ``idx`` (indices, mask or slice); backgrounds are shared."""
-        if not isinstance(idx, slice):
-            idx = torch.as_tensor(idx)
-            idx = idx if idx.dtype == torch.bool else idx.long()
-        return BrailleSet(
-            depth=self.depth[idx],
-            sim=self.sim[idx],
-            real=self.real[idx],
-            labels=self.labels[idx],
-            poses=self.poses.index(idx),
-            sim_background=self.sim_background,
-            real_background=self.real_background,
-        )
+    def _subset_own(self, index: torch.Tensor | slice) -> dict[str, Any]:
+        return {"poses": self.poses.index(index)}
 
     def save(self, path: str | os.PathLike) -> Path:
         """One uncompressed .npz, written to a temporary file and renamed into place."""

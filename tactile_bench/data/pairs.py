@@ -17,12 +17,13 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import torch
 
-from tactile_bench.data.pixels import image_to_foreground, to_uint8
+from tactile_bench.data.paired import Pairs, shape_error
+from tactile_bench.data.pixels import to_uint8
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_npz, file_sha256, load_npz
 
@@ -31,12 +32,18 @@ SPLITS = ("train", "test", "all")
 
 
 @dataclass
-class PairSet:
+class PairSet(Pairs):
     """N pairs: ``depth`` (N,1,S,S) mm, ``real`` (N,3,S,S) uint8, optional ``sim`` likewise.
 
     ``real_background`` (B,3,S,S) uint8 holds the no-contact frames, ``real_bg_index`` (N,)
     says which one each pair was recorded with. ``meta`` maps names to per-pair arrays.
+    Shape checks, ``subset`` and ``foreground`` are ``data.paired.Pairs``'s; the stacked
+    backgrounds, depth's values, shards and ``cat`` are this class's own.
     """
+
+    PER_PAIR: ClassVar[tuple[str, ...]] = ("depth", "sim", "real", "real_bg_index")
+    FRAMES: ClassVar[tuple[str, ...]] = ("sim_background",)  # real_background: (B,3,S,S)
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"sim", "sim_background"})
 
     depth: torch.Tensor
     real: torch.Tensor
@@ -47,34 +54,16 @@ class PairSet:
     meta: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        n = len(self.depth)
-        if self.depth.dim() != 4 or self.depth.shape[1] != 1:
-            raise TactileBenchError(
-                f"PairSet: depth must be (N,1,S,S), got {tuple(self.depth.shape)}"
-            )
-        size = tuple(self.depth.shape[2:])
-        if tuple(self.real.shape) != (n, 3, *size):
-            raise TactileBenchError(
-                f"PairSet: real must be {(n, 3, *size)}, got {tuple(self.real.shape)}"
-            )
-        if self.sim is not None and tuple(self.sim.shape) != (n, 3, *size):
-            raise TactileBenchError(
-                f"PairSet: sim must be {(n, 3, *size)}, got {tuple(self.sim.shape)}"
-            )
         if self.real_background.dim() == 3:
             self.real_background = self.real_background[None]
-        if tuple(self.real_background.shape[1:]) != (3, *size):
-            raise TactileBenchError("PairSet: real_background must be (B,3,S,S) like depth")
         self.real_bg_index = torch.as_tensor(self.real_bg_index, dtype=torch.int64).reshape(-1)
-        if len(self.real_bg_index) != n:
-            raise TactileBenchError("PairSet: real_bg_index must have one entry per pair")
-        if n and (
-            self.real_bg_index.min() < 0 or self.real_bg_index.max() >= len(self.real_background)
-        ):
+        self._check_pairs(**{f"meta {k!r}": v for k, v in self.meta.items()})
+        n, size = len(self), tuple(self.depth.shape[2:])
+        bgs = self.real_background
+        if bgs.dim() != 4 or tuple(bgs.shape[1:]) != (3, *size):
+            raise shape_error(type(self).__name__, "real_background", "(B,3,S,S)", bgs.shape)
+        if n and (self.real_bg_index.min() < 0 or self.real_bg_index.max() >= len(bgs)):
             raise TactileBenchError("PairSet: real_bg_index outside the backgrounds")
-        for k, v in self.meta.items():
-            if len(v) != n:
-                raise TactileBenchError(f"PairSet: meta {k!r} has {len(v)} entries for {n} pairs")
         if not torch.isfinite(self.depth).all():
             raise TactileBenchError("PairSet: depth has NaN or infinite values")
         if n and float(self.depth.min()) < 0:
@@ -82,9 +71,6 @@ class PairSet:
                 f"PairSet: negative depth ({float(self.depth.min()):.3g} mm); depth is the "
                 "gel's penetration, >= 0"
             )
-
-    def __len__(self) -> int:
-        return len(self.depth)
 
     def background(self, kind: Literal["sim", "real"] = "real") -> torch.Tensor:
         """(N,3,S,S) uint8 no-contact frame of every pair."""
@@ -94,32 +80,12 @@ class PairSet:
             raise TactileBenchError("PairSet: no sim images in this set")
         return self.sim_background.expand(len(self), -1, -1, -1)
 
-    def foreground(self, kind: Literal["sim", "real"] = "real") -> torch.Tensor:
-        """(image - background) / 255 + 0.5 as float32 (N,3,S,S): the models' input."""
-        if kind not in ("sim", "real"):
-            raise TactileBenchError(
-                f"PairSet.foreground: kind must be 'sim' or 'real', not {kind!r}"
-            )
-        image = self.real if kind == "real" else self.sim
-        if image is None:
-            raise TactileBenchError("PairSet: no sim images in this set")
-        return image_to_foreground(image.float(), self.background(kind).float())
+    def _background(self, kind: Literal["sim", "real"]) -> torch.Tensor:
+        return self.background(kind)  # each pair's own frame, for ``foreground``
 
-    def subset(self, idx: torch.Tensor | slice | Sequence[int]) -> PairSet:
-        """The pairs at ``idx`` (indices, mask or slice); backgrounds are shared."""
-        if not isinstance(idx, slice):
-            idx = torch.as_tensor(idx)
-            idx = idx if idx.dtype == torch.bool else idx.long()
-        np_idx = idx if isinstance(idx, slice) else idx.numpy()
-        return PairSet(
-            depth=self.depth[idx],
-            real=self.real[idx],
-            real_background=self.real_background,
-            real_bg_index=self.real_bg_index[idx],
-            sim=None if self.sim is None else self.sim[idx],
-            sim_background=self.sim_background,
-            meta={k: v[np_idx] for k, v in self.meta.items()},
-        )
+    def _subset_own(self, index: torch.Tensor | slice) -> dict[str, Any]:
+        at = index if isinstance(index, slice) else index.numpy()
+        return {"meta": {k: v[at] for k, v in self.meta.items()}}
 
     @classmethod
     def cat(cls, parts: Sequence[PairSet]) -> PairSet:

@@ -31,12 +31,14 @@ import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, ClassVar
 from urllib.parse import quote, unquote
 
 import numpy as np
 import torch
 from PIL import Image, UnidentifiedImageError
 
+from tactile_bench.data.paired import Pairs
 from tactile_bench.data.tactile_diffusion import braille_root
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL
@@ -58,7 +60,7 @@ MAX_PENETRATION_MM = 5.0
 
 
 @dataclass
-class PairedData:
+class PairedData(Pairs):
     """N paired contacts, all as float tensors.
 
     depth: (N, 1, S, S) gel penetration in mm (>= 0), at the image size S.
@@ -67,7 +69,13 @@ class PairedData:
     sim_background: (3, S, S) the simulator's no-contact frame, or None when not given.
     labels: N label strings ("" when unlabelled); names: N file stems (for reports).
     gel_mm: (width, height) of the gel view the images cover, mm: slopes depend on it.
+
+    Shape checks, ``subset`` and ``foreground`` are ``data.paired.Pairs``'s.
     """
+
+    FRAMES: ClassVar[tuple[str, ...]] = ("background", "sim_background")
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"sim": "sim_background", "real": "background"}
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"sim_background"})
 
     depth: torch.Tensor
     sim: torch.Tensor
@@ -79,36 +87,15 @@ class PairedData:
     gel_mm: tuple[float, float] = DIGIT_GEL_MM
 
     def __post_init__(self) -> None:
-        n = len(self.names)
-        if not (len(self.depth) == len(self.sim) == len(self.real) == len(self.labels) == n):
-            raise TactileBenchError("PairedData: depth, sim, real, labels and names differ in N")
-        size = tuple(self.sim.shape[-2:])
-        for what, t in (("depth", self.depth), ("real", self.real)):
-            if tuple(t.shape[-2:]) != size:
-                raise TactileBenchError(
-                    f"PairedData: {what} is {tuple(t.shape[-2:])}, sim is {size}"
-                )
-
-    def __len__(self) -> int:
-        return len(self.names)
+        self._check_pairs(labels=self.labels, names=self.names)
 
     @property
     def size(self) -> int:
         return int(self.sim.shape[-1])
 
-    def subset(self, idx: torch.Tensor | list[int]) -> PairedData:
-        """The pairs at ``idx`` (same backgrounds)."""
-        index = torch.as_tensor(idx, dtype=torch.long)
-        return PairedData(
-            self.depth[index],
-            self.sim[index],
-            self.real[index],
-            self.background,
-            self.sim_background,
-            [self.labels[i] for i in index.tolist()],
-            [self.names[i] for i in index.tolist()],
-            self.gel_mm,
-        )
+    def _subset_own(self, index: torch.Tensor | slice) -> dict[str, Any]:
+        at = self._positions(index)
+        return {"labels": [self.labels[i] for i in at], "names": [self.names[i] for i in at]}
 
 
 # ----------------------------------------------------------------------------- labels
