@@ -34,6 +34,7 @@ from typing import Any
 
 import torch
 
+from tactile_bench.data.pixels import image_to_foreground
 from tactile_bench.diagnose.candidates import make_base, render_background
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.diagnose.which import apply_effects
@@ -57,7 +58,7 @@ NOISE_COPIES = 8  # ... and at most this many copies of each image
 
 
 def _foreground(images: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
-    return (images.float() - background.float()) / 255.0 + 0.5
+    return image_to_foreground(images.float(), background.float())
 
 
 def match_noise(
