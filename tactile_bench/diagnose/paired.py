@@ -39,6 +39,7 @@ import torch
 from PIL import Image, UnidentifiedImageError
 
 from tactile_bench.data.paired import Pairs
+from tactile_bench.data.pixels import to_uint8
 from tactile_bench.data.tactile_diffusion import braille_root
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL
@@ -349,7 +350,7 @@ def _save_png(array: np.ndarray, path: Path) -> None:
 
 
 def _rgb_u8(image: torch.Tensor) -> np.ndarray:
-    return image.float().round().clamp(0, 255).to(torch.uint8).permute(1, 2, 0).numpy()
+    return to_uint8(image).permute(1, 2, 0).numpy()
 
 
 def write_paired(root: str | os.PathLike, data: PairedData, overwrite: bool = False) -> Path:
@@ -412,7 +413,7 @@ def data_hash(data: PairedData) -> str:
     digest.update((data.depth * UM_PER_MM).round().to(torch.int32).numpy().tobytes())
     for t in (data.sim, data.real, data.background, data.sim_background):
         if t is not None:
-            digest.update(t.round().clamp(0, 255).to(torch.uint8).numpy().tobytes())
+            digest.update(to_uint8(t).numpy().tobytes())
     digest.update(
         "\n".join(f"{a}/{b}" for a, b in zip(data.labels, data.names, strict=True)).encode()
     )

@@ -17,6 +17,7 @@ from pydantic import Field
 from tqdm.auto import tqdm
 
 from tactile_bench.data.braille import BrailleSet
+from tactile_bench.data.pixels import to_uint8
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json, atomic_write_npz
 from tactile_bench.metrics.image import ssim_mse
@@ -98,7 +99,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
                 depth = split.depth[i : i + config.batch_size]
                 chunks.append(translator.translate(depth, background, generator))
                 bar.update(len(depth))
-        images = torch.cat(chunks).round().clamp(0, 255).to(torch.uint8)
+        images = to_uint8(torch.cat(chunks))
         atomic_write_npz(
             ctx.directory / f"{name}.npz",
             images=images.numpy(),
