@@ -15,9 +15,7 @@ from __future__ import annotations
 import ctypes
 import gc
 import os
-import resource
 import statistics
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -26,6 +24,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import torch
+
+from tactile_bench.pipeline.memory import peak_rss_mib
 
 _PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 _STATM = "/proc/self/statm"
@@ -41,8 +41,7 @@ def rss_bytes() -> int | None:
 
 
 def _maxrss_bytes() -> int:
-    scale = 1 if sys.platform == "darwin" else 1024  # Linux reports KiB, macOS bytes
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
+    return round(peak_rss_mib() * 2**20)
 
 
 @dataclass
