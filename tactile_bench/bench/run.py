@@ -238,6 +238,10 @@ def diffusion_translator(
     return model.eval(), info
 
 
+#: how a section runs inside ``run_bench``: announced, timed into ``section_wall_s``
+_Step = Callable[[str, Callable[[], Any]], Any]
+
+
 def run_bench(
     cfg: BenchConfig,
     out_dir: str | Path = ".",
@@ -252,12 +256,7 @@ def run_bench(
 
     ``command`` is the command line to print in bench.md (the CLI passes its own).
     """
-    unknown = sorted(set(sections) - set(SECTIONS))
-    if unknown:
-        raise TactileBenchError(f"--only: unknown sections {unknown}; known: {list(SECTIONS)}")
-    for flag, path in (("--diffusion", diffusion), ("--braille", braille)):
-        if path and not Path(path).exists():
-            raise TactileBenchError(f"{flag} {path}: no such file or folder")
+    _check_request(sections, diffusion, braille)
     started = time.perf_counter()
     result: dict[str, Any] = {
         "config": _jsonable(dataclasses.asdict(cfg)),
@@ -267,15 +266,7 @@ def run_bench(
     }
     with torch_threads(threads), _quiet_lightning():
         result["machine"] = machine_info()
-
-        def step(name: str, fn: Callable[[], Any]) -> Any:
-            if progress:
-                print(f"[bench] {name} ...", flush=True)
-            t0 = time.perf_counter()
-            value = fn()
-            result.setdefault("section_wall_s", {})[name] = round(time.perf_counter() - t0, 2)
-            return value
-
+        step = _timed_steps(result, progress)
         result["machine"]["conv_probe"] = step(
             "precision: conv fp32 vs bf16", lambda: conv_probe(cfg.conv_batch, cfg.repeats)
         )
@@ -284,107 +275,14 @@ def run_bench(
                 "start-up: --help of every command", lambda: startup.startup_times(cfg.repeats)
             )
         if "simulation" in sections:
-            braille_sim = step(
-                "simulation: braille", lambda: simulation.braille(cfg.sim_contacts, cfg.repeats)
-            )
-            objects_sim = step(
-                "simulation: objects", lambda: simulation.objects(cfg.sim_frames, cfg.repeats)
-            )
-            result["simulation"] = {
-                "braille_contacts_per_s": braille_sim["contacts_per_s"],
-                "object_frames_per_s": objects_sim["frames_per_s"],
-                "braille": braille_sim,
-                "objects": objects_sim,
-            }
+            result["simulation"] = _simulation_section(step, cfg)
         needs_data = {"sampling", "threads", "training", "scaling"} & set(sections)
         if needs_data:
             data = step("braille data", lambda: braille_data(braille, cfg, progress))
         if {"sampling", "threads"} & set(sections):
-            model, origin = step(
-                "diffusion model",
-                lambda: diffusion_translator(diffusion, data["finetune"], cfg, progress),
-            )
-            table = step(
-                "sampling",
-                lambda: sampling.sampling_table(
-                    model,
-                    data["test"],
-                    [sampling.Case(*c) for c in cfg.cases],
-                    cfg.ddpm_images,
-                    cfg.repeats,
-                    cfg.default_images,
-                    seed=cfg.seed,
-                    progress=progress,
-                ),
-            )
-            variants = step(
-                "inference settings",
-                lambda: sampling.inference_variants(
-                    model, data["test"].subset(slice(0, cfg.variant_images)), cfg.repeats, cfg.seed
-                ),
-            )
-            presets = step(
-                "network presets",
-                lambda: sampling.preset_speed(
-                    cfg.presets,
-                    cfg.preset_batch,
-                    model.config.image_size,
-                    cfg.repeats,
-                    model.config.precision,
-                ),
-            )
-            result["sampling"] = [*table["rows"], table["default_large"]]
-            result["sampling_details"] = {
-                **{k: v for k, v in table.items() if k not in ("rows", "default_large")},
-                "model": origin,
-                "default": {k: getattr(model.config, k) for k in INFERENCE_KEYS}
-                | {"compute_precision": model.inference_precision()},
-                "default_check": default_check(table),
-                "inference_variants": variants,
-                "presets": presets,
-            }
-        if "threads" in sections:
-            result["threads"] = step(
-                "threads and OpenMP wait policy",
-                lambda: thread_settings(
-                    model, data["test"].subset(slice(0, cfg.variant_images)), cfg.repeats
-                ),
-            )
-            result["threads_model"] = origin
+            _model_sections(step, result, cfg, sections, data, diffusion, progress)
         if {"training", "scaling"} & set(sections):
-            ft = data["finetune"]
-            fg, depth, labels = ft.foreground("real"), ft.depth, ft.labels
-        if "training" in sections:
-            result["training"] = step(
-                "training throughput",
-                lambda: training.training_throughput(
-                    depth,
-                    fg,
-                    labels,
-                    cfg.train_warmup,
-                    cfg.train_steps,
-                    progress,
-                    cfg.translator_overrides,
-                ),
-            )
-        if "scaling" in sections:
-            sim_scaling = {}
-            if "simulation" in result:
-                sim = result["simulation"]
-                sim_scaling = {k: sim[k]["scaling"] for k in ("braille", "objects")}
-            epochs = step(
-                "epoch scaling",
-                lambda: training.epoch_scaling(
-                    depth, fg, labels, cfg.epoch_sizes, cfg.translator_overrides
-                ),
-            )
-            result["scaling"] = {
-                "simulation": {
-                    k: {"rows": v, "linearity": simulation.linearity(v)}
-                    for k, v in sim_scaling.items()
-                },
-                "epoch": epochs,
-            }
+            _training_sections(step, result, cfg, sections, data["finetune"], progress)
         if "jpeg" in sections:
             result["jpeg"] = step(
                 "JPEG codecs: ours, kornia's, libjpeg",
@@ -402,6 +300,165 @@ def run_bench(
     atomic_write_json(out / "bench.json", _jsonable(result))
     atomic_write_text(out / "bench.md", render_markdown(result))
     return result
+
+
+def _check_request(sections: tuple[str, ...], diffusion: str | None, braille: str | None) -> None:
+    """Refuse unknown sections and missing inputs before minutes of measuring, not after."""
+    unknown = sorted(set(sections) - set(SECTIONS))
+    if unknown:
+        raise TactileBenchError(f"--only: unknown sections {unknown}; known: {list(SECTIONS)}")
+    for flag, path in (("--diffusion", diffusion), ("--braille", braille)):
+        if path and not Path(path).exists():
+            raise TactileBenchError(f"{flag} {path}: no such file or folder")
+
+
+def _timed_steps(result: dict[str, Any], progress: bool) -> _Step:
+    """One way to run every section: announced on the console, its wall time kept in result."""
+
+    def step(name: str, fn: Callable[[], Any]) -> Any:
+        if progress:
+            print(f"[bench] {name} ...", flush=True)
+        t0 = time.perf_counter()
+        value = fn()
+        result.setdefault("section_wall_s", {})[name] = round(time.perf_counter() - t0, 2)
+        return value
+
+    return step
+
+
+def _simulation_section(step: _Step, cfg: BenchConfig) -> dict[str, Any]:
+    """Braille contacts and object frames per second, with the full measurements beside."""
+    braille_sim = step(
+        "simulation: braille", lambda: simulation.braille(cfg.sim_contacts, cfg.repeats)
+    )
+    objects_sim = step(
+        "simulation: objects", lambda: simulation.objects(cfg.sim_frames, cfg.repeats)
+    )
+    return {
+        "braille_contacts_per_s": braille_sim["contacts_per_s"],
+        "object_frames_per_s": objects_sim["frames_per_s"],
+        "braille": braille_sim,
+        "objects": objects_sim,
+    }
+
+
+def _model_sections(
+    step: _Step,
+    result: dict[str, Any],
+    cfg: BenchConfig,
+    sections: tuple[str, ...],
+    data: dict[str, BrailleSet],
+    diffusion: str | None,
+    progress: bool,
+) -> None:
+    """Sampling and threads: both time the one diffusion model, loaded or fitted once here."""
+    model, origin = step(
+        "diffusion model",
+        lambda: diffusion_translator(diffusion, data["finetune"], cfg, progress),
+    )
+    result.update(_sampling_section(step, cfg, model, origin, data["test"], progress))
+    if "threads" in sections:
+        result["threads"] = step(
+            "threads and OpenMP wait policy",
+            lambda: thread_settings(
+                model, data["test"].subset(slice(0, cfg.variant_images)), cfg.repeats
+            ),
+        )
+        result["threads_model"] = origin
+
+
+def _sampling_section(
+    step: _Step,
+    cfg: BenchConfig,
+    model: DiffusionTranslator,
+    origin: dict[str, Any],
+    test: BrailleSet,
+    progress: bool,
+) -> dict[str, Any]:
+    """``sampling`` (the table's rows) and ``sampling_details`` (what the rows stand on)."""
+    table = step(
+        "sampling",
+        lambda: sampling.sampling_table(
+            model,
+            test,
+            [sampling.Case(*c) for c in cfg.cases],
+            cfg.ddpm_images,
+            cfg.repeats,
+            cfg.default_images,
+            seed=cfg.seed,
+            progress=progress,
+        ),
+    )
+    variants = step(
+        "inference settings",
+        lambda: sampling.inference_variants(
+            model, test.subset(slice(0, cfg.variant_images)), cfg.repeats, cfg.seed
+        ),
+    )
+    presets = step(
+        "network presets",
+        lambda: sampling.preset_speed(
+            cfg.presets,
+            cfg.preset_batch,
+            model.config.image_size,
+            cfg.repeats,
+            model.config.precision,
+        ),
+    )
+    return {
+        "sampling": [*table["rows"], table["default_large"]],
+        "sampling_details": {
+            **{k: v for k, v in table.items() if k not in ("rows", "default_large")},
+            "model": origin,
+            "default": {k: getattr(model.config, k) for k in INFERENCE_KEYS}
+            | {"compute_precision": model.inference_precision()},
+            "default_check": default_check(table),
+            "inference_variants": variants,
+            "presets": presets,
+        },
+    }
+
+
+def _training_sections(
+    step: _Step,
+    result: dict[str, Any],
+    cfg: BenchConfig,
+    sections: tuple[str, ...],
+    finetune: BrailleSet,
+    progress: bool,
+) -> None:
+    """Training throughput and epoch scaling: both train on the finetune set's real pairs."""
+    fg, depth, labels = finetune.foreground("real"), finetune.depth, finetune.labels
+    if "training" in sections:
+        result["training"] = step(
+            "training throughput",
+            lambda: training.training_throughput(
+                depth,
+                fg,
+                labels,
+                cfg.train_warmup,
+                cfg.train_steps,
+                progress,
+                cfg.translator_overrides,
+            ),
+        )
+    if "scaling" in sections:
+        sim_scaling = {}
+        if "simulation" in result:
+            sim = result["simulation"]
+            sim_scaling = {k: sim[k]["scaling"] for k in ("braille", "objects")}
+        epochs = step(
+            "epoch scaling",
+            lambda: training.epoch_scaling(
+                depth, fg, labels, cfg.epoch_sizes, cfg.translator_overrides
+            ),
+        )
+        result["scaling"] = {
+            "simulation": {
+                k: {"rows": v, "linearity": simulation.linearity(v)} for k, v in sim_scaling.items()
+            },
+            "epoch": epochs,
+        }
 
 
 @contextmanager
