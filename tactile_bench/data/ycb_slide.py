@@ -97,26 +97,10 @@ def build_ycb_slide_standin(
     sim_bg = to_uint8(sim_bg).float()
     real_bg = to_uint8(real_sensor.background(gel))
     root = Path(out_dir)
-    key = json_sha256(
-        {
-            "config": asdict(config),
-            "gel": asdict(gel),
-            "sim_optics": asdict(sim_optics),
-            "sim_bg": float(sim_bg.sum()),
-            "real_bg": int(real_bg.long().sum()),
-            "sensor": repr(real_sensor),
-            "randomness": "per chunk",  # chunk_generator; corpora seeded per trajectory rebuild
-        }
-    )
-    old_key = None
-    if (root / "manifest.json").exists():
-        try:
-            old = read_manifest(root)
-            old_key = old.get("key")
-            if old_key == key and all((root / s["file"]).exists() for s in old["shards"]):
-                return old
-        except TactileBenchError:
-            pass
+    key = _corpus_key(config, gel, sim_optics, sim_bg, real_bg, real_sensor)
+    finished = _finished_corpus(root, key)
+    if finished is not None:
+        return finished
     partial_key_file = root / ".building"
     resumable = partial_key_file.exists() and partial_key_file.read_text() == key
     root.mkdir(parents=True, exist_ok=True)
@@ -124,59 +108,15 @@ def build_ycb_slide_standin(
     write_backgrounds(root, real_bg, sim_bg)
 
     n_frames = config.frames_per_trajectory
-    whole = trajectory_chunks(n_frames)
     total = len(config.objects) * config.n_trajectories * n_frames
-    jobs = []
-    for oi, name in enumerate(config.objects):
-        todo = [
-            (k, 0, whole)
-            for k in range(config.n_trajectories)
-            if not (resumable and (root / f"shards/{name}_{k}.npz").exists())
-        ]
-        if todo:
-            jobs.append(
-                ObjectJob(
-                    name, oi, config, gel, sim_optics, sim_bg, real_sensor, real_bg, root, todo
-                )
-            )
-    done, started = 0, time.perf_counter()
+    jobs = _jobs_to_do(config, gel, sim_optics, sim_bg, real_sensor, real_bg, root, resumable)
+    started = time.perf_counter()
     bar = tqdm(total=total, desc="ycb-slide stand-in", unit="pair", disable=not progress)
     n_todo = sum(len(j.todo) for j in jobs)
     bar.update(n_frames * (len(config.objects) * config.n_trajectories - n_todo))  # on disk
-    # trajectories built in pieces: (object, trajectory) -> {(first, stop chunk): pairs}
-    split: dict[tuple[int, int], dict[tuple[int, int], dict]] = {}
-    for job, built in run_jobs(jobs, workers):
-        done += sum(built.written.values())
-        bar.update(n_frames * len(built.written))
-        for (k, first, stop), pairs in built.pieces.items():
-            parts = split.setdefault((job.index, k), {})
-            parts[first, stop] = pairs
-            bar.update(min(stop * TRAJECTORY_CHUNK, n_frames) - first * TRAJECTORY_CHUNK)
-            if sum(b - a for a, b in parts) == whole:  # all here: join them in order
-                done += write_shard(job, k, [parts[p] for p in sorted(parts)])
-                del split[(job.index, k)]
-    shards = []
+    done = _build_shards(jobs, workers, bar, n_frames)
     with timed_span("io"):
-        for oi, name in enumerate(config.objects):
-            rng = np.random.default_rng([config.seed, oi])
-            test = set(
-                rng.choice(config.n_trajectories, config.test_trajectories, replace=False).tolist()
-            )
-            for k in range(config.n_trajectories):
-                rel = f"shards/{name}_{k}.npz"
-                path = root / rel
-                with np.load(path) as z:
-                    n_kept = len(z["real_bg_index"])
-                shards.append(
-                    {
-                        "file": rel,
-                        "object": name,
-                        "trajectory": k,
-                        "split": "test" if k in test else "train",
-                        "n": n_kept,
-                        "sha256": file_sha256(path),
-                    }
-                )
+        shards = _shard_records(root, config)
     bar.close()
     elapsed = time.perf_counter() - started
     manifest = {
@@ -197,6 +137,113 @@ def build_ycb_slide_standin(
     atomic_write_json(root / "manifest.json", manifest)
     partial_key_file.unlink(missing_ok=True)
     return manifest
+
+
+def _corpus_key(
+    config: StandinConfig,
+    gel: GelSpec,
+    sim_optics: SimOptics,
+    sim_bg: torch.Tensor,
+    real_bg: torch.Tensor,
+    real_sensor: SurfaceSensor,
+) -> str:
+    """Everything the corpus depends on, hashed: what is on disk is reused only on a match."""
+    return json_sha256(
+        {
+            "config": asdict(config),
+            "gel": asdict(gel),
+            "sim_optics": asdict(sim_optics),
+            "sim_bg": float(sim_bg.sum()),
+            "real_bg": int(real_bg.long().sum()),
+            "sensor": repr(real_sensor),
+            "randomness": "per chunk",  # chunk_generator; corpora seeded per trajectory rebuild
+        }
+    )
+
+
+def _finished_corpus(root: Path, key: str) -> dict[str, Any] | None:
+    """The manifest of a complete corpus with this key already at ``root``: nothing to build."""
+    if (root / "manifest.json").exists():
+        try:
+            old = read_manifest(root)
+            if old.get("key") == key and all((root / s["file"]).exists() for s in old["shards"]):
+                return old
+        except TactileBenchError:
+            pass
+    return None
+
+
+def _jobs_to_do(
+    config: StandinConfig,
+    gel: GelSpec,
+    sim_optics: SimOptics,
+    sim_bg: torch.Tensor,
+    real_sensor: SurfaceSensor,
+    real_bg: torch.Tensor,
+    root: Path,
+    resumable: bool,
+) -> list[ObjectJob]:
+    """One job an object, of its whole trajectories not on disk: a resumed build skips those."""
+    whole = trajectory_chunks(config.frames_per_trajectory)
+    jobs = []
+    for oi, name in enumerate(config.objects):
+        todo = [
+            (k, 0, whole)
+            for k in range(config.n_trajectories)
+            if not (resumable and (root / f"shards/{name}_{k}.npz").exists())
+        ]
+        if todo:
+            jobs.append(
+                ObjectJob(
+                    name, oi, config, gel, sim_optics, sim_bg, real_sensor, real_bg, root, todo
+                )
+            )
+    return jobs
+
+
+def _build_shards(jobs: list[ObjectJob], workers: int, bar: tqdm, n_frames: int) -> int:
+    """Run the jobs, joining trajectories built in pieces into their shards; returns pairs."""
+    whole = trajectory_chunks(n_frames)
+    done = 0
+    # trajectories built in pieces: (object, trajectory) -> {(first, stop chunk): pairs}
+    split: dict[tuple[int, int], dict[tuple[int, int], dict]] = {}
+    for job, built in run_jobs(jobs, workers):
+        done += sum(built.written.values())
+        bar.update(n_frames * len(built.written))
+        for (k, first, stop), pairs in built.pieces.items():
+            parts = split.setdefault((job.index, k), {})
+            parts[first, stop] = pairs
+            bar.update(min(stop * TRAJECTORY_CHUNK, n_frames) - first * TRAJECTORY_CHUNK)
+            if sum(b - a for a, b in parts) == whole:  # all here: join them in order
+                done += write_shard(job, k, [parts[p] for p in sorted(parts)])
+                del split[(job.index, k)]
+    return done
+
+
+def _shard_records(root: Path, config: StandinConfig) -> list[dict[str, Any]]:
+    """Each shard's file, object, trajectory, split, pairs and checksum, as the manifest lists."""
+    shards = []
+    for oi, name in enumerate(config.objects):
+        rng = np.random.default_rng([config.seed, oi])
+        test = set(
+            rng.choice(config.n_trajectories, config.test_trajectories, replace=False).tolist()
+        )
+        for k in range(config.n_trajectories):
+            rel = f"shards/{name}_{k}.npz"
+            path = root / rel
+            with np.load(path) as z:
+                n_kept = len(z["real_bg_index"])
+            shards.append(
+                {
+                    "file": rel,
+                    "object": name,
+                    "trajectory": k,
+                    "split": "test" if k in test else "train",
+                    "n": n_kept,
+                    "sha256": file_sha256(path),
+                }
+            )
+    return shards
 
 
 def iter_shards(root: str | os.PathLike) -> Iterator[dict[str, Any]]:
