@@ -185,8 +185,6 @@ def load_ycb_slide_real(
     Every frame is decoded and must be RGB of one size per log. With ``skipped`` (a list),
     unreadable or wrong frames are dropped and recorded in it (file, reason) instead of raising.
     """
-    import trimesh
-
     gel = gel or GelSpec()
     depths, reals, bgs, bg_idx = [], [], [], []
     meta: dict[str, list[np.ndarray]] = {"object": [], "trajectory": [], "frame": []}
@@ -196,26 +194,7 @@ def load_ycb_slide_real(
     for t, rec in enumerate(tqdm(recordings, desc="ycb-slide real", disable=not progress)):
         if rec.object_name not in renderers:
             stl = rec.root / "obj_models" / rec.object_name / "nontextured.stl"
-            if not stl.exists():
-                raise TactileBenchError(f"{stl}: file not found")
-            try:
-                mesh = trimesh.load(stl, force="mesh")
-            except Exception as exc:  # trimesh raises many types on bad files
-                raise TactileBenchError(f"{stl}: not a readable mesh ({exc})") from None
-            if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-                raise TactileBenchError(f"{stl}: no triangles (unreadable or empty mesh)")
-            if not np.isfinite(mesh.vertices).all():
-                raise TactileBenchError(f"{stl}: NaN or infinite vertex coordinates")
-            in_m = mesh.scale < 5.0 if mesh_units_m is None else mesh_units_m
-            vertices = mesh.vertices * (1000.0 if in_m else 1.0)
-            renderer = MeshDepthRenderer(vertices, mesh.faces, gel)
-            samples = vertices
-            if snap_to_surface:
-                dense = trimesh.Trimesh(vertices, mesh.faces, process=False)
-                samples = np.vstack(
-                    [vertices, trimesh.sample.sample_surface(dense, 200_000, seed=0)[0]]
-                )
-            renderers[rec.object_name] = (renderer, samples)
+            renderers[rec.object_name] = _object_renderer(stl, gel, mesh_units_m, snap_to_surface)
         renderer, samples = renderers[rec.object_name]
         gel_m, keep = real_gel_poses(
             rec.folder / "synced_data.npy",
@@ -223,42 +202,15 @@ def load_ycb_slide_real(
             rec.object_name,
         )
         frames_dir = rec.folder / "frames"
-        frame_files = sorted(frames_dir.glob("frame_*.jpg"))
-        if not frame_files:
-            raise TactileBenchError(f"{frames_dir}: no frame_*.jpg images")
-        if len(frame_files) != len(gel_m):
-            raise TactileBenchError(
-                f"{frames_dir}: {len(frame_files)} frames but {len(gel_m)} poses in synced_data.npy"
-            )
+        frame_files = _frame_files(frames_dir, len(gel_m))
         idx = np.nonzero(keep)[0][::stride]
         same = SameSize(f"frames of {frames_dir}")
-        frames, good = [], []
-        for i in idx:
-            try:
-                frames.append(read_image(frame_files[i], gel.size, same))
-                good.append(i)
-            except TactileBenchError as exc:
-                if skipped is None:
-                    raise
-                skipped.append((str(frame_files[i]), str(exc)))
-        if not good:
-            raise TactileBenchError(f"{frames_dir}: no readable frames")
-        idx = np.asarray(good, dtype=np.int64)
-        poses = gel_m[idx] @ _FLIP
-        poses[:, :3, 3] *= 1000.0
-        if snap_to_surface:
-            poses[:, :3, 3] = _closest_on_surface(poses[:, :3, 3], samples)
-        poses[:, :3, 3] += poses[:, :3, 2] * press_mm
+        frames, idx = _read_frames(frame_files, idx, gel, same, skipped, frames_dir)
+        poses = _pressed_poses(gel_m[idx], samples, snap_to_surface, press_mm)
         height = renderer.render_height(poses)
         depths.append(to_depth(height, gel))
         reals.append(torch.stack(frames))
-        released = released_background(rec.root / "bgs", rec.object_name)
-        if background == "first_frame" or (background == "auto" and released is None):
-            bgs.append(read_image(frame_files[0], gel.size, same))
-        elif background == "auto":
-            bgs.append(read_image(released, gel.size))  # resized: the original's order too
-        else:
-            bgs.append(read_image(Path(background), gel.size, same))
+        bgs.append(_log_background(rec, background, frame_files[0], gel, same))
         bg_idx.append(np.full(len(idx), t))
         meta["object"].append(np.full(len(idx), object_names.index(rec.object_name)))
         meta["trajectory"].append(np.full(len(idx), t))
@@ -272,3 +224,88 @@ def load_ycb_slide_real(
         real_bg_index=torch.from_numpy(np.concatenate(bg_idx)),
         meta={k: np.concatenate(v).astype(np.int64) for k, v in meta.items()},
     )
+
+
+def _object_renderer(
+    stl: Path, gel: GelSpec, mesh_units_m: bool | None, snap_to_surface: bool
+) -> tuple[MeshDepthRenderer, np.ndarray]:
+    """A log's mesh, checked and in mm: its depth renderer and the points poses snap onto."""
+    import trimesh
+
+    if not stl.exists():
+        raise TactileBenchError(f"{stl}: file not found")
+    try:
+        mesh = trimesh.load(stl, force="mesh")
+    except Exception as exc:  # trimesh raises many types on bad files
+        raise TactileBenchError(f"{stl}: not a readable mesh ({exc})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise TactileBenchError(f"{stl}: no triangles (unreadable or empty mesh)")
+    if not np.isfinite(mesh.vertices).all():
+        raise TactileBenchError(f"{stl}: NaN or infinite vertex coordinates")
+    in_m = mesh.scale < 5.0 if mesh_units_m is None else mesh_units_m
+    vertices = mesh.vertices * (1000.0 if in_m else 1.0)
+    renderer = MeshDepthRenderer(vertices, mesh.faces, gel)
+    samples = vertices
+    if snap_to_surface:
+        dense = trimesh.Trimesh(vertices, mesh.faces, process=False)
+        samples = np.vstack([vertices, trimesh.sample.sample_surface(dense, 200_000, seed=0)[0]])
+    return renderer, samples
+
+
+def _frame_files(frames_dir: Path, n_poses: int) -> list[Path]:
+    """A log's ``frame_*.jpg`` in order, one a pose: a log out of step is refused, not paired."""
+    frame_files = sorted(frames_dir.glob("frame_*.jpg"))
+    if not frame_files:
+        raise TactileBenchError(f"{frames_dir}: no frame_*.jpg images")
+    if len(frame_files) != n_poses:
+        raise TactileBenchError(
+            f"{frames_dir}: {len(frame_files)} frames but {n_poses} poses in synced_data.npy"
+        )
+    return frame_files
+
+
+def _read_frames(
+    frame_files: list[Path],
+    idx: np.ndarray,
+    gel: GelSpec,
+    same: SameSize,
+    skipped: list[tuple[str, str]] | None,
+    frames_dir: Path,
+) -> tuple[list[torch.Tensor], np.ndarray]:
+    """Frames ``idx`` at S x S and the indices read: bad ones raise, or go to ``skipped``."""
+    frames, good = [], []
+    for i in idx:
+        try:
+            frames.append(read_image(frame_files[i], gel.size, same))
+            good.append(i)
+        except TactileBenchError as exc:
+            if skipped is None:
+                raise
+            skipped.append((str(frame_files[i]), str(exc)))
+    if not good:
+        raise TactileBenchError(f"{frames_dir}: no readable frames")
+    return frames, np.asarray(good, dtype=np.int64)
+
+
+def _pressed_poses(
+    gel_m: np.ndarray, samples: np.ndarray, snap_to_surface: bool, press_mm: float
+) -> np.ndarray:
+    """YCB-Slide gel poses in our frame and mm, snapped to the surface and pressed in."""
+    poses = gel_m @ _FLIP
+    poses[:, :3, 3] *= 1000.0
+    if snap_to_surface:
+        poses[:, :3, 3] = _closest_on_surface(poses[:, :3, 3], samples)
+    poses[:, :3, 3] += poses[:, :3, 2] * press_mm
+    return poses
+
+
+def _log_background(
+    rec: YcbSlideRecording, background: str, first_frame: Path, gel: GelSpec, same: SameSize
+) -> torch.Tensor:
+    """The log's no-contact frame, as ``background`` asks: released, first frame or a file."""
+    released = released_background(rec.root / "bgs", rec.object_name)
+    if background == "first_frame" or (background == "auto" and released is None):
+        return read_image(first_frame, gel.size, same)
+    if background == "auto":
+        return read_image(released, gel.size)  # resized: the original's order too
+    return read_image(Path(background), gel.size, same)
