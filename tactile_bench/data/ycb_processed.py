@@ -96,21 +96,9 @@ def load_ycb_processed(
     log's first listed frame when that file is absent (said in the returned info).
     """
     gel = gel or GelSpec()
-    base = processed_root(root)
-    if base is None:
-        raise TactileBenchError(
-            f"{root}: not Tactile-Diffusion's YCB-Slide copy (expected "
-            "dataset/<object>/dataset_<k>/{frames,frames_depth}/ in it or in its YCB-Slide/)"
-        )
+    base = _processed_base(root)
     data = base / "dataset"
-    names = sorted(
-        p.name for p in data.iterdir() if p.is_dir() and not is_hidden(p)
-    )  # the original skips the .zip/.sh files beside them
-    if objects is not None:
-        missing = sorted(set(objects) - set(names))
-        if missing:
-            raise TactileBenchError(f"{data}: no folder for objects {missing}")
-        names = [n for n in names if n in objects]
+    names = _object_names(data, objects)
     depths, reals, bgs = [], [], []
     meta: dict[str, list[int]] = {"object": [], "trajectory": [], "frame": [], "test": []}
     bg_index: list[int] = []
@@ -126,35 +114,20 @@ def load_ycb_processed(
             train, test = _read_split(log / "files_train_test.npz")
             listed = [(f, 0) for f in train] + [(f, 1) for f in test]
             listed = sorted(listed)[::stride]
-            kept = 0
-            for f, is_test in listed:
-                if not (log / "frames_depth" / f).is_file():
-                    no_depth += 1  # a mocap glitch touch_simulator.py removed
-                    continue
-                try:
-                    depth = read_mask(log / "frames_depth" / f, gel.size, weights_bgr_as_rgb=False)
-                    real = read_image(log / "frames" / f, gel.size)
-                except TactileBenchError as exc:
-                    if skipped is None:
-                        raise
-                    skipped.append((str(log / "frames" / f), str(exc)))
-                    continue
-                depths.append(torch.from_numpy((depth * mm_per_level).astype(np.float32))[None])
+            read, missing = _read_listed(log, listed, gel, mm_per_level, skipped)
+            no_depth += missing
+            for f, is_test, depth, real in read:
+                depths.append(depth)
                 reals.append(real)
                 meta["object"].append(o)
                 meta["trajectory"].append(trajectory)
                 meta["frame"].append(int("".join(c for c in f if c.isdigit()) or 0))
                 meta["test"].append(is_test)
-                kept += 1
-            if kept:
-                if released is not None:
-                    bgs.append(read_image(released, gel.size))
-                    sources[name] = str(released.relative_to(base))
-                else:
-                    first = log / "frames" / listed[0][0]
-                    bgs.append(read_image(first, gel.size))
-                    sources[name] = "first frame of each log (no bgs/bg_<i>.jpg)"
-                bg_index += [len(bgs) - 1] * kept
+            if read:
+                first = log / "frames" / listed[0][0]
+                bg, sources[name] = _log_background(base, released, first, gel)
+                bgs.append(bg)
+                bg_index += [len(bgs) - 1] * len(read)
             trajectory += 1
     if not depths:
         raise TactileBenchError(f"{data}: no (frame, frames_depth) pairs")
@@ -173,3 +146,62 @@ def load_ycb_processed(
         "mm_per_level": mm_per_level,
     }
     return pairs, info
+
+
+def _processed_base(root: str | os.PathLike) -> Path:
+    """The copy's ``YCB-Slide`` folder under ``root``: anything else is refused up front."""
+    base = processed_root(root)
+    if base is None:
+        raise TactileBenchError(
+            f"{root}: not Tactile-Diffusion's YCB-Slide copy (expected "
+            "dataset/<object>/dataset_<k>/{frames,frames_depth}/ in it or in its YCB-Slide/)"
+        )
+    return base
+
+
+def _object_names(data: Path, objects: Sequence[str] | None) -> list[str]:
+    """The object folders to read, sorted: all, or ``objects``, each of which must be there."""
+    names = sorted(
+        p.name for p in data.iterdir() if p.is_dir() and not is_hidden(p)
+    )  # the original skips the .zip/.sh files beside them
+    if objects is not None:
+        missing = sorted(set(objects) - set(names))
+        if missing:
+            raise TactileBenchError(f"{data}: no folder for objects {missing}")
+        names = [n for n in names if n in objects]
+    return names
+
+
+def _read_listed(
+    log: Path,
+    listed: list[tuple[str, int]],
+    gel: GelSpec,
+    mm_per_level: float,
+    skipped: list[tuple[str, str]] | None,
+) -> tuple[list[tuple[str, int, torch.Tensor, torch.Tensor]], int]:
+    """A log's (file, is test, depth in mm, frame) pairs, and how many had no heightmap."""
+    read, no_depth = [], 0
+    for f, is_test in listed:
+        if not (log / "frames_depth" / f).is_file():
+            no_depth += 1  # a mocap glitch touch_simulator.py removed
+            continue
+        try:
+            depth = read_mask(log / "frames_depth" / f, gel.size, weights_bgr_as_rgb=False)
+            real = read_image(log / "frames" / f, gel.size)
+        except TactileBenchError as exc:
+            if skipped is None:
+                raise
+            skipped.append((str(log / "frames" / f), str(exc)))
+            continue
+        depth_mm = torch.from_numpy((depth * mm_per_level).astype(np.float32))[None]
+        read.append((f, is_test, depth_mm, real))
+    return read, no_depth
+
+
+def _log_background(
+    base: Path, released: Path | None, first: Path, gel: GelSpec
+) -> tuple[torch.Tensor, str]:
+    """A log's background and where it came from: the released frame, else its first frame."""
+    if released is not None:
+        return read_image(released, gel.size), str(released.relative_to(base))
+    return read_image(first, gel.size), "first frame of each log (no bgs/bg_<i>.jpg)"
