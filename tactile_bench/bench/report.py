@@ -87,10 +87,8 @@ def _machine(r: dict[str, Any]) -> list[str]:
 
 
 def _sampling(r: dict[str, Any]) -> list[str]:
+    """The sampling section: every sampler's row, the default against its targets, why."""
     d = r["sampling_details"]
-    base = r["sampling"][0]
-    check = d["default_check"]
-    default = d["default"]
     ddpm = f"DDPM-{d['baseline']['steps']}"
     lines = [
         f"## Diffusion sampling: speed and quality against the paper's {ddpm}",
@@ -103,8 +101,16 @@ def _sampling(r: dict[str, Any]) -> list[str]:
         "structure and noise as the real frames; the denoised average scores below 1).",
         "",
     ]
+    lines += _sampler_table(r["sampling"], ddpm)
+    lines += _default_against_targets(r, ddpm)
+    lines += _default_speed_sources(d, r["machine"]["cpu_capability"])
+    return lines
+
+
+def _sampler_table(samples: list[dict[str, Any]], ddpm: str) -> list[str]:
+    """One row a sampler and step count: speed and quality against the DDPM baseline."""
     rows = []
-    for s in r["sampling"]:
+    for s in samples:
         name = f"**{s['sampler']}**" if s["default"] else s["sampler"]
         rows.append(
             [
@@ -122,7 +128,7 @@ def _sampling(r: dict[str, Any]) -> list[str]:
                 _f(s["evals_per_s"], 0),
             ]
         )
-    lines += _table(
+    return _table(
         [
             "sampler",
             "steps",
@@ -139,8 +145,16 @@ def _sampling(r: dict[str, Any]) -> list[str]:
         ],
         rows,
     )
+
+
+def _default_against_targets(r: dict[str, Any], ddpm: str) -> list[str]:
+    """The default sampler's figures beside issue 8's targets, and why it is the default."""
+    d = r["sampling_details"]
+    base = r["sampling"][0]
+    check = d["default_check"]
+    default = d["default"]
     met = "met" if check["all_met"] else "NOT met"
-    lines += [
+    return [
         f"**Default** ({default['sampler']}, {default['steps']} steps, precision "
         f"{_precision(default)} on {r['machine']['cpu_capability']}, channels_last "
         f"{default['channels_last']}, chunks of {default['sample_batch_size']}): targets {met}.",
@@ -156,9 +170,13 @@ def _sampling(r: dict[str, Any]) -> list[str]:
         "",
         *_why_default(r["sampling"], default, ddpm),
     ]
+
+
+def _default_speed_sources(d: dict[str, Any], cpu_capability: str) -> list[str]:
+    """The default's inference settings one at a time, then the network presets' speed."""
     variants = d["inference_variants"]
-    steps = default["steps"]
-    lines += [
+    steps = d["default"]["steps"]
+    return [
         "### Where the default's speed comes from (same sampler, same contacts)",
         "",
         *_table(
@@ -178,7 +196,7 @@ def _sampling(r: dict[str, Any]) -> list[str]:
         ),
         "### Network presets (random weights: speed only)",
         "",
-        f"Precision: {_presets_precision(d['presets'])} on {r['machine']['cpu_capability']}.",
+        f"Precision: {_presets_precision(d['presets'])} on {cpu_capability}.",
         "",
         *_table(
             ["preset", "parameters", "net evals/s", "DDPM-500 img/s", f"{steps}-step img/s"],
@@ -197,7 +215,6 @@ def _sampling(r: dict[str, Any]) -> list[str]:
         "for about 1.25x per network evaluation.",
         "",
     ]
-    return lines
 
 
 def _presets_precision(presets: dict[str, Any]) -> str:
