@@ -226,70 +226,15 @@ def sliding_trajectories(
     if not 0 <= lo <= hi:
         raise TactileBenchError(f"trajectories: bad press range {press_mm}")
     rng = np.random.default_rng(seed)
-    step = 1.0
     out = []
     for k in range(n_trajectories):
-        start = surface.points[rng.integers(len(surface.points))]
-        path = _walk(surface, start, length_mm, step, rng)
-        seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
-        s_path = np.concatenate([[0.0], np.cumsum(seg)])
-        s = np.linspace(0.0, length_mm, n_frames)
-        pos = np.stack([np.interp(s, s_path, path[:, c]) for c in range(3)], 1)
-        # smoothed normal and sliding direction (over ~3 mm of path)
-        width = max(1, int(round(3.0 / max(length_mm / n_frames, 1e-9))))
-        raw = surface.normal(pos)
-        normal = _smooth(raw, width)
-        norm = np.linalg.norm(normal, axis=1, keepdims=True)
-        normal = np.where(norm > 0.5, normal / np.maximum(norm, 1e-9), raw)
-        dense_dir = np.gradient(path, axis=0)
-        direc = np.stack([np.interp(s, s_path, dense_dir[:, c]) for c in range(3)], 1)
-        direc = _smooth(direc, width)
-        direc -= normal * np.einsum("ij,ij->i", direc, normal)[:, None]
-        length = np.linalg.norm(direc, axis=1, keepdims=True)
-        for i in np.nonzero(length[:, 0] < 1e-6)[0]:
-            direc[i], length[i] = _tangent(direc[i - 1] if i else direc[i], normal[i])
-        direc /= np.maximum(length, 1e-9)
-
-        # gel frame: z into the object; y at a drifting angle psi to the sliding direction
-        z = -normal
-        side = np.cross(z, direc)
-        psi = rng.uniform(0, 2 * np.pi) + np.radians(20) * np.sin(
-            2 * np.pi * s / rng.uniform(80, 200) + rng.uniform(0, 2 * np.pi)
-        )
-        y = np.cos(psi)[:, None] * direc + np.sin(psi)[:, None] * side
-        x = np.cross(y, z)
-        rot = np.stack([x, y, z], axis=2)  # columns are the sensor axes in the object frame
-        if tilt_deg > 0:
-            phase = rng.uniform(0, 2 * np.pi, 2)
-            lam = rng.uniform(60, 150, 2)
-            tilt = np.stack(
-                [np.sin(2 * np.pi * s / lam[i] + phase[i]) for i in range(2)] + [np.zeros_like(s)],
-                1,
-            )
-            rot = rot @ Rotation.from_rotvec(np.radians(tilt_deg) * tilt).as_matrix()
-
-        lam_p = rng.uniform(40, 120)
-        wave = (
-            0.5
-            + 0.35 * np.sin(2 * np.pi * s / lam_p + rng.uniform(0, 2 * np.pi))
-            + 0.15 * np.sin(2 * np.pi * s / (lam_p / 3.1) + rng.uniform(0, 2 * np.pi))
-        )
-        press = lo + (hi - lo) * np.clip(wave, 0, 1)
+        s, pos, normal, direc = _slide_path(surface, length_mm, n_frames, rng)
+        rot = _gel_rotations(normal, direc, s, tilt_deg, rng)
+        press = _press_depths(s, lo, hi, rng)
         poses = np.tile(np.eye(4), (n_frames, 1, 1))
         poses[:, :3, :3] = rot
         poses[:, :3, 3] = pos + rot[:, :, 2] * press[:, None]
-
-        mean_speed = length_mm / duration_s
-        speed = mean_speed * (
-            1 + 0.4 * np.sin(2 * np.pi * s / rng.uniform(60, 160) + rng.uniform(0, 2 * np.pi))
-        )
-        ds = np.diff(s)
-        time_s = np.concatenate([[0.0], np.cumsum(ds / ((speed[1:] + speed[:-1]) / 2))])
-        time_s *= duration_s / time_s[-1]  # the log lasts exactly duration_s
-        # the object moves under the gel opposite to the sensor's motion
-        vel3 = -direc * speed[:, None] * (time_s[-1] / duration_s)
-        velocity = np.einsum("nji,nj->ni", rot[:, :, :2], vel3)
-
+        time_s, velocity = _times_and_velocity(s, direc, rot, length_mm, duration_s, rng)
         measured = poses @ pose_noise(n_frames, noise_trans_mm, noise_rot_deg, rng)
         out.append(
             Trajectory(
@@ -304,3 +249,89 @@ def sliding_trajectories(
             )
         )
     return out
+
+
+def _slide_path(
+    surface: Surface, length_mm: float, n_frames: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A walk from a random surface point at ``n_frames`` even arc lengths: (arc length,
+    position, smoothed normal, unit sliding direction), all but the first (n, 3)."""
+    step = 1.0
+    start = surface.points[rng.integers(len(surface.points))]
+    path = _walk(surface, start, length_mm, step, rng)
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    s_path = np.concatenate([[0.0], np.cumsum(seg)])
+    s = np.linspace(0.0, length_mm, n_frames)
+    pos = np.stack([np.interp(s, s_path, path[:, c]) for c in range(3)], 1)
+    # smoothed normal and sliding direction (over ~3 mm of path)
+    width = max(1, int(round(3.0 / max(length_mm / n_frames, 1e-9))))
+    raw = surface.normal(pos)
+    normal = _smooth(raw, width)
+    norm = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(norm > 0.5, normal / np.maximum(norm, 1e-9), raw)
+    dense_dir = np.gradient(path, axis=0)
+    direc = np.stack([np.interp(s, s_path, dense_dir[:, c]) for c in range(3)], 1)
+    direc = _smooth(direc, width)
+    direc -= normal * np.einsum("ij,ij->i", direc, normal)[:, None]
+    length = np.linalg.norm(direc, axis=1, keepdims=True)
+    for i in np.nonzero(length[:, 0] < 1e-6)[0]:
+        direc[i], length[i] = _tangent(direc[i - 1] if i else direc[i], normal[i])
+    direc /= np.maximum(length, 1e-9)
+    return s, pos, normal, direc
+
+
+def _gel_rotations(
+    normal: np.ndarray, direc: np.ndarray, s: np.ndarray, tilt_deg: float, rng: np.random.Generator
+) -> np.ndarray:
+    """(n, 3, 3) gel frames: z into the object, y drifting about a heading, a hand's tilt."""
+    # gel frame: z into the object; y at a drifting angle psi to the sliding direction
+    z = -normal
+    side = np.cross(z, direc)
+    psi = rng.uniform(0, 2 * np.pi) + np.radians(20) * np.sin(
+        2 * np.pi * s / rng.uniform(80, 200) + rng.uniform(0, 2 * np.pi)
+    )
+    y = np.cos(psi)[:, None] * direc + np.sin(psi)[:, None] * side
+    x = np.cross(y, z)
+    rot = np.stack([x, y, z], axis=2)  # columns are the sensor axes in the object frame
+    if tilt_deg > 0:
+        phase = rng.uniform(0, 2 * np.pi, 2)
+        lam = rng.uniform(60, 150, 2)
+        tilt = np.stack(
+            [np.sin(2 * np.pi * s / lam[i] + phase[i]) for i in range(2)] + [np.zeros_like(s)],
+            1,
+        )
+        rot = rot @ Rotation.from_rotvec(np.radians(tilt_deg) * tilt).as_matrix()
+    return rot
+
+
+def _press_depths(s: np.ndarray, lo: float, hi: float, rng: np.random.Generator) -> np.ndarray:
+    """Press depth at each frame: two sine waves of random phase, wandering in [lo, hi]."""
+    lam_p = rng.uniform(40, 120)
+    wave = (
+        0.5
+        + 0.35 * np.sin(2 * np.pi * s / lam_p + rng.uniform(0, 2 * np.pi))
+        + 0.15 * np.sin(2 * np.pi * s / (lam_p / 3.1) + rng.uniform(0, 2 * np.pi))
+    )
+    return lo + (hi - lo) * np.clip(wave, 0, 1)
+
+
+def _times_and_velocity(
+    s: np.ndarray,
+    direc: np.ndarray,
+    rot: np.ndarray,
+    length_mm: float,
+    duration_s: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frame times at a speed +-40 % about the mean, and the object's velocity in gel x, y."""
+    mean_speed = length_mm / duration_s
+    speed = mean_speed * (
+        1 + 0.4 * np.sin(2 * np.pi * s / rng.uniform(60, 160) + rng.uniform(0, 2 * np.pi))
+    )
+    ds = np.diff(s)
+    time_s = np.concatenate([[0.0], np.cumsum(ds / ((speed[1:] + speed[:-1]) / 2))])
+    time_s *= duration_s / time_s[-1]  # the log lasts exactly duration_s
+    # the object moves under the gel opposite to the sensor's motion
+    vel3 = -direc * speed[:, None] * (time_s[-1] / duration_s)
+    velocity = np.einsum("nji,nj->ni", rot[:, :, :2], vel3)
+    return time_s, velocity
