@@ -310,7 +310,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="torch CPU threads (default: torch's choice; 1 is faster when the cores are busy)",
     )
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_fit(sub)
+    _add_render(sub)
+    _add_data(sub)
+    _add_ground(sub)
+    _add_real_translators(sub)
+    _add_list(sub)
+    for module_name in COMMAND_MODULES:
+        importlib.import_module(module_name).register(sub)
+    return parser
 
+
+def _add_fit(sub: argparse._SubParsersAction) -> None:
+    """``fit RECIPE``: the main job, a recipe's stages run or taken from the cache."""
     fit = sub.add_parser("fit", help="run a recipe (cached stages; reruns skip finished work)")
     fit.add_argument("recipe", help="path to a recipe YAML, e.g. recipes/smoke.yaml")
     fit.add_argument(
@@ -331,6 +343,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--no-progress", action="store_true", help="no progress bars")
     fit.set_defaults(func=_cmd_fit)
 
+
+def _add_render(sub: argparse._SubParsersAction) -> None:
+    """``render``: a contact sheet of what each surrogate effect does."""
     render = sub.add_parser(
         "render", help="contact sheet: depth | sim | each surrogate effect alone | all effects"
     )
@@ -346,6 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--seed", type=int, default=0)
     render.set_defaults(func=_cmd_render)
 
+
+def _add_data(sub: argparse._SubParsersAction) -> None:
+    """``data ycb-slide``: the pretraining corpus built outside a recipe."""
     data = sub.add_parser("data", help="build a dataset on its own (outside a recipe)")
     data_sub = data.add_subparsers(dest="dataset", required=True)
     ycb = data_sub.add_parser("ycb-slide", help="the YCB-Slide stand-in pretraining corpus")
@@ -357,6 +375,9 @@ def build_parser() -> argparse.ArgumentParser:
     ycb.add_argument("--no-progress", action="store_true")
     ycb.set_defaults(func=_cmd_data)
 
+
+def _add_ground(sub: argparse._SubParsersAction) -> None:
+    """``ground``: the surrogate held against real measurements."""
     ground = sub.add_parser(
         "ground",
         help="compare the surrogate with real measurements: a DIGIT's background and optics, "
@@ -377,6 +398,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ground.set_defaults(func=_cmd_ground)
 
+
+def _add_real_translators(sub: argparse._SubParsersAction) -> None:
+    """``real-translators SENSOR``: both translators on real GelSight presses."""
     rt = sub.add_parser(
         "real-translators",
         help="cGAN and diffusion on real GelSight presses (taxim package): fit half, test half",
@@ -389,13 +413,12 @@ def build_parser() -> argparse.ArgumentParser:
     rt.add_argument("--cgan-steps", type=int, default=200, help="cGAN on real presses")
     rt.set_defaults(func=_cmd_real_translators)
 
+
+def _add_list(sub: argparse._SubParsersAction) -> None:
+    """``list``: what a recipe can name (translators, effects, recipes, stages)."""
     lst = sub.add_parser("list", help="list translators, effects, recipes and stage kinds")
     lst.add_argument("what", nargs="?", choices=sorted(LISTINGS), help="only this listing")
     lst.set_defaults(func=_cmd_list)
-
-    for module_name in COMMAND_MODULES:
-        importlib.import_module(module_name).register(sub)
-    return parser
 
 
 class _CurrentStderr(logging.StreamHandler):
