@@ -159,36 +159,9 @@ def train_classifier(
         seed=config.seed,
         val_fraction=config.val_fraction,
     )
-    model = BrailleClassifier(
-        num_classes=num_classes,
-        in_channels=int(train_fg.shape[1]),
-        width=config.width,
-        blocks=config.blocks,
-        stem=config.stem,
-        lr=config.lr,
-        weight_decay=config.weight_decay,
-        augment=config.augment,
-        shift_px=config.shift_px,
-    )
-    if init is not None:
-        model.load_state_dict(init.state_dict())
-    has_val = datamodule.val_set is not None
-    steps_per_epoch = max(1, -(-len(datamodule.train_set) // config.batch_size))
+    model = _new_model(config, int(train_fg.shape[1]), num_classes, init)
     logger_list = list(loggers) if loggers is not None else [CSVLogger(str(out_dir), name="logs")]
-    kwargs: dict[str, Any] = dict(
-        max_epochs=config.epochs,
-        accelerator="cpu",
-        devices=1,
-        logger=logger_list,
-        default_root_dir=str(out_dir),
-        enable_model_summary=False,
-        enable_progress_bar=True,
-        log_every_n_steps=min(50, steps_per_epoch),
-        num_sanity_val_steps=0,
-        limit_val_batches=1.0 if has_val else 0,
-    )
-    kwargs.update(trainer_kwargs or {})  # enable_checkpointing=False: no checkpoints/last.ckpt
-    kwargs["precision"] = classifier_precision(config, kwargs)
+    kwargs = _trainer_settings(config, datamodule, out_dir, logger_list, trainer_kwargs)
     for logger in logger_list:
         logger.log_hyperparams({"classifier": config.to_dict(), "n_train": len(train_labels)})
     key = fingerprint(
@@ -215,11 +188,62 @@ def train_classifier(
             _close_wandb(logger_list)
     model = model.cpu()
     if config.precise_bn_images > 0:
-        x = datamodule.train_set.tensors[0]
-        g = torch.Generator().manual_seed(config.seed)
-        idx = torch.randperm(len(x), generator=g)[: config.precise_bn_images]
-        recalibrate_batchnorm(model, x[idx], batch_size=max(config.batch_size, 64))
+        _precise_batchnorm(model, datamodule.train_set.tensors[0], config)
     return model.eval()
+
+
+def _new_model(
+    config: ClassifierConfig, in_channels: int, num_classes: int, init: BrailleClassifier | None
+) -> BrailleClassifier:
+    """The network ``config`` describes; with ``init``, its weights start from that model's."""
+    model = BrailleClassifier(
+        num_classes=num_classes,
+        in_channels=in_channels,
+        width=config.width,
+        blocks=config.blocks,
+        stem=config.stem,
+        lr=config.lr,
+        weight_decay=config.weight_decay,
+        augment=config.augment,
+        shift_px=config.shift_px,
+    )
+    if init is not None:
+        model.load_state_dict(init.state_dict())
+    return model
+
+
+def _trainer_settings(
+    config: ClassifierConfig,
+    datamodule: _ResumableDataModule,
+    out_dir: Path,
+    logger_list: list[Logger],
+    trainer_kwargs: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """The Trainer's arguments: CPU and the config's epochs, the caller's overrides on top."""
+    has_val = datamodule.val_set is not None
+    steps_per_epoch = max(1, -(-len(datamodule.train_set) // config.batch_size))
+    kwargs: dict[str, Any] = dict(
+        max_epochs=config.epochs,
+        accelerator="cpu",
+        devices=1,
+        logger=logger_list,
+        default_root_dir=str(out_dir),
+        enable_model_summary=False,
+        enable_progress_bar=True,
+        log_every_n_steps=min(50, steps_per_epoch),
+        num_sanity_val_steps=0,
+        limit_val_batches=1.0 if has_val else 0,
+    )
+    kwargs.update(trainer_kwargs or {})  # enable_checkpointing=False: no checkpoints/last.ckpt
+    kwargs["precision"] = classifier_precision(config, kwargs)
+    return kwargs
+
+
+def _precise_batchnorm(model: BrailleClassifier, x: torch.Tensor, config: ClassifierConfig) -> None:
+    """BatchNorm statistics recomputed on a seeded sample of the training images."""
+    g = torch.Generator().manual_seed(config.seed)
+    idx = torch.randperm(len(x), generator=g)[: config.precise_bn_images]
+    recalibrate_batchnorm(model, x[idx], batch_size=max(config.batch_size, 64))
 
 
 @torch.no_grad()
