@@ -335,8 +335,44 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     classes = list(CHARACTERS[:n_classes])
 
     pool = _real_finetune_pool(ctx)
-    per_seed = []
     trained = _train_seeds(ctx, foreground, labels, n_classes, pool)
+    per_seed = _score_seeds(ctx, trained, foreground, labels, test, test_fg, unit, n_classes)
+
+    first = per_seed[0]["test"]
+    confusion_png(
+        first["confusion"],
+        classes,
+        ctx.directory / "confusion.png",
+        title=f"{config.row}: confusion on real test (seed {config.seeds[0]})",
+    )
+    per_class_bar_png(first["per_class_accuracy"], classes, ctx.directory / "per_class.png")
+    # every seed holds out as many images (stratified_split's count does not depend on it)
+    n_train = int(len(labels) - len(trained[-1][1]))
+    summary = _stage_summary(ctx, per_seed, n_train, int(len(test)), pool, unit)
+    atomic_write_json(ctx.directory / "metrics.json", {"summary": summary, "per_seed": per_seed})
+    outputs = {
+        "metrics": "metrics.json",
+        "confusion": "confusion.png",
+        "per_class": "per_class.png",
+    }
+    outputs |= {f"model_seed{seed}": f"model_seed{seed}.pt" for seed in config.seeds}
+    return outputs, summary
+
+
+def _score_seeds(
+    ctx: StageContext,
+    trained: list[tuple[Any, torch.Tensor]],
+    foreground: torch.Tensor,
+    labels: torch.Tensor,
+    test: BrailleSet,
+    test_fg: torch.Tensor,
+    unit: tuple[str, torch.Tensor, torch.Tensor] | None,
+    n_classes: int,
+) -> list[dict[str, Any]]:
+    """Each seed's scores on real and sim test, the second unit and its held-out images;
+    its model saved as ``model_seed<seed>.pt``."""
+    config: ClassifyConfig = ctx.config
+    per_seed = []
     for seed, (model, held_idx) in zip(config.seeds, trained, strict=True):
         heldout = (
             evaluate(model, foreground[held_idx], labels[held_idx], num_classes=n_classes)
@@ -360,24 +396,28 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             }
         )
         save_classifier(model, ctx.directory / f"model_seed{seed}.pt")
+    return per_seed
 
-    first = per_seed[0]["test"]
-    confusion_png(
-        first["confusion"],
-        classes,
-        ctx.directory / "confusion.png",
-        title=f"{config.row}: confusion on real test (seed {config.seeds[0]})",
-    )
-    per_class_bar_png(first["per_class_accuracy"], classes, ctx.directory / "per_class.png")
-    summary = {
+
+def _stage_summary(
+    ctx: StageContext,
+    per_seed: list[dict[str, Any]],
+    n_train: int,
+    n_test: int,
+    pool: BrailleSet | None,
+    unit: tuple[str, torch.Tensor, torch.Tensor] | None,
+) -> dict[str, Any]:
+    """The row of the table: what was trained on, and mean +- std of every score over seeds."""
+    config: ClassifyConfig = ctx.config
+    return {
         "row": config.row,
         "train_images": config.train_images,
         "train_set": config.train_set,
         "finetune_fraction": config.finetune_fraction,
         "seeds": config.seeds,
-        "n_train": int(len(labels) - len(held_idx)),
+        "n_train": n_train,
         "n_finetune": len(pool) if pool is not None else 0,  # real pairs it fine-tuned on
-        "n_test": int(len(test)),
+        "n_test": n_test,
         # a real-data braille stage records its source: its test frames are real DIGIT frames
         "tested_on": "real" if ctx.input("data").metrics.get("source_root") else None,
         **{
@@ -407,14 +447,6 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             else None
         ),
     }
-    atomic_write_json(ctx.directory / "metrics.json", {"summary": summary, "per_seed": per_seed})
-    outputs = {
-        "metrics": "metrics.json",
-        "confusion": "confusion.png",
-        "per_class": "per_class.png",
-    }
-    outputs |= {f"model_seed{seed}": f"model_seed{seed}.pt" for seed in config.seeds}
-    return outputs, summary
 
 
 STAGE = StageKind(
