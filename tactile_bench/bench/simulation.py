@@ -128,7 +128,35 @@ def objects(
     real = SurrogateDigit.from_profile(profile)
     optics = SimOptics()
     sim_bg = sim_background(gel.size)
-    name = object_names[0]
+    setup, phases = _object_phases(object_names[0], n, repeats, gel, real, optics, sim_bg)
+    scaling, first_build_s = _build_scaling(object_names, n, repeats, amortised, real)
+    phase_total = sum(t.median_wall_s for t in phases.values())
+    big = scaling[f"{SCALES[-1]}x"]
+    return {
+        "frames": n,
+        "objects": list(object_names),
+        "setup_scene_s": setup.median_wall_s,
+        "first_build_s": first_build_s,
+        "phases": {
+            name: {**t.to_dict(), "share": t.median_wall_s / phase_total}
+            for name, t in phases.items()
+        },
+        "scaling": scaling,
+        "marginal": _marginal_rates(scaling),
+        "frames_per_s": big["per_s"],
+    }
+
+
+def _object_phases(
+    name: str,
+    n: int,
+    repeats: int,
+    gel: GelSpec,
+    real: SurrogateDigit,
+    optics: SimOptics,
+    sim_bg: torch.Tensor,
+) -> tuple[Timing, dict[str, Timing]]:
+    """Scene set-up, then each phase on ``n`` frames of one object, one thread as a worker."""
     setup = measure(lambda: _object_scene(name, n, gel)[0].close(), work=1, repeats=1)
     renderer, traj = _object_scene(name, n, gel)
     press = traj.press_mm.astype(np.float64)
@@ -151,6 +179,13 @@ def objects(
             "real_image": measure(lambda: real.render_surface(true_h, gel, gen()), n, repeats),
         }
     renderer.close()
+    return setup, phases
+
+
+def _build_scaling(
+    object_names: tuple[str, ...], n: int, repeats: int, amortised: int, real: SurrogateDigit
+) -> tuple[dict[str, dict[str, Any]], float]:
+    """Whole stand-in builds at each of ``SCALES``, and the first build's time kept apart."""
     per_object = amortised // SCALES[-1] if amortised else 0
     base = max(n, per_object * len(object_names))
     scaling: dict[str, dict[str, Any]] = {}
@@ -177,26 +212,18 @@ def objects(
                 first_build_s = time.perf_counter() - w0
             work = config.frames_per_trajectory * config.n_trajectories * len(object_names)
             scaling[f"{k}x"] = _measure_with_workers(build, work, repeats).to_dict()
-    phase_total = sum(t.median_wall_s for t in phases.values())
+    return scaling, first_build_s
+
+
+def _marginal_rates(scaling: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """Frames a second (and a CPU-second) the largest build adds over the one before it."""
     big, mid = scaling[f"{SCALES[-1]}x"], scaling[f"{SCALES[-2]}x"]
     extra = big["work"] - mid["work"]
     d_wall = big["median_wall_s"] - mid["median_wall_s"]
     d_cpu = big["work"] / big["per_cpu_s"] - mid["work"] / mid["per_cpu_s"]
     return {
-        "frames": n,
-        "objects": list(object_names),
-        "setup_scene_s": setup.median_wall_s,
-        "first_build_s": first_build_s,
-        "phases": {
-            name: {**t.to_dict(), "share": t.median_wall_s / phase_total}
-            for name, t in phases.items()
-        },
-        "scaling": scaling,
-        "marginal": {
-            "frames_per_s": extra / d_wall if d_wall > 0 else float("inf"),
-            "frames_per_cpu_s": extra / d_cpu if d_cpu > 0 else float("inf"),
-        },
-        "frames_per_s": big["per_s"],
+        "frames_per_s": extra / d_wall if d_wall > 0 else float("inf"),
+        "frames_per_cpu_s": extra / d_cpu if d_cpu > 0 else float("inf"),
     }
 
 
