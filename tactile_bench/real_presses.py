@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from tactile_bench.data.ball_presses import TAXIM_SENSORS, BallPresses, load_ball_presses
-from tactile_bench.data.pairs import load_pairs
+from tactile_bench.data.pairs import PairSet, load_pairs
 from tactile_bench.data.ycb_slide import build_ycb_slide_standin
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.errors import TactileBenchError
@@ -32,7 +32,7 @@ from tactile_bench.sensor.press_grounding import (
     summarise,
 )
 from tactile_bench.sensor.surrogate import SurrogateDigit
-from tactile_bench.translators.base import image_to_foreground
+from tactile_bench.translators.base import Translator, image_to_foreground
 from tactile_bench.translators.registry import create_translator
 
 FIT_HW = (96, 128)  # a fifth of the 480 x 640 frame, 4:3 kept: the size the fits run at
@@ -213,23 +213,10 @@ def translators_on_presses(
     seconds["corpus"] = time.perf_counter() - t
     fit_depth, fit_fg = depth[fit_idx], image_to_foreground(real[fit_idx], background)
 
-    t = time.perf_counter()
-    diffusion = create_translator(
-        "diffusion", {"max_steps": pretrain_steps, "batch_size": 16, "lr": 5e-4, "seed": seed}
+    finetuned, cgan, fit_seconds = _fit_translators(
+        corpus, fit_depth, fit_fg, out_dir, (pretrain_steps, finetune_steps, cgan_steps), seed
     )
-    diffusion.fit_pairs(corpus.depth, corpus.foreground("real"), out_dir / "pretrain")
-    seconds["diffusion_pretrain"] = time.perf_counter() - t
-    t = time.perf_counter()
-    finetuned = create_translator(
-        "diffusion", {"max_steps": finetune_steps, "batch_size": 8, "lr": 2e-4, "seed": seed}
-    )
-    finetuned.load_state_dict(diffusion.state_dict())
-    finetuned.fit_pairs(fit_depth, fit_fg, out_dir / "finetune")
-    seconds["diffusion_finetune"] = time.perf_counter() - t
-    t = time.perf_counter()
-    cgan = create_translator("cgan", {"max_steps": cgan_steps, "batch_size": 8, "seed": seed})
-    cgan.fit_pairs(fit_depth, fit_fg, out_dir / "cgan")
-    seconds["cgan"] = time.perf_counter() - t
+    seconds |= fit_seconds
 
     test_depth, test_real = depth[test_idx], real[test_idx]
     generator = torch.Generator().manual_seed(seed)
@@ -258,3 +245,35 @@ def translators_on_presses(
         "total_seconds": round(time.perf_counter() - start, 1),
         "figure": str(out_dir / "samples.png"),
     }
+
+
+def _fit_translators(
+    corpus: PairSet,
+    fit_depth: torch.Tensor,
+    fit_fg: torch.Tensor,
+    out_dir: Path,
+    steps: tuple[int, int, int],
+    seed: int,
+) -> tuple[Translator, Translator, dict[str, float]]:
+    """Diffusion pretrained on the corpus then fine-tuned on the fitting half, and the cGAN
+    on that half, with (pretrain, finetune, cgan) ``steps``; and each fit's seconds."""
+    pretrain_steps, finetune_steps, cgan_steps = steps
+    seconds: dict[str, float] = {}
+    t = time.perf_counter()
+    diffusion = create_translator(
+        "diffusion", {"max_steps": pretrain_steps, "batch_size": 16, "lr": 5e-4, "seed": seed}
+    )
+    diffusion.fit_pairs(corpus.depth, corpus.foreground("real"), out_dir / "pretrain")
+    seconds["diffusion_pretrain"] = time.perf_counter() - t
+    t = time.perf_counter()
+    finetuned = create_translator(
+        "diffusion", {"max_steps": finetune_steps, "batch_size": 8, "lr": 2e-4, "seed": seed}
+    )
+    finetuned.load_state_dict(diffusion.state_dict())
+    finetuned.fit_pairs(fit_depth, fit_fg, out_dir / "finetune")
+    seconds["diffusion_finetune"] = time.perf_counter() - t
+    t = time.perf_counter()
+    cgan = create_translator("cgan", {"max_steps": cgan_steps, "batch_size": 8, "seed": seed})
+    cgan.fit_pairs(fit_depth, fit_fg, out_dir / "cgan")
+    seconds["cgan"] = time.perf_counter() - t
+    return finetuned, cgan, seconds
