@@ -42,30 +42,31 @@ def fit_response(
     delta: torch.Tensor,
     gel_mm: tuple[float, float],
     ridge: float = RIDGE,
-    chunk: int = 8,
+    chunk: int = 4,
 ) -> np.ndarray:
     """Weights (F, 3, 6) so that the compact model maps ``surface`` to ``delta`` (N, 3, H, W).
 
-    Normal equations accumulated ``chunk`` frames at a time in float64 (memory stays at a
-    few frames whatever N is), then a ridge-regularised solve.
+    Normal equations of ``chunk`` frames at a time in float32 (a few thousand rows of
+    bounded features: relative error ~1e-5), summed in float64 (memory stays at a few frames
+    whatever N is), then a ridge-regularised solve in float64. The diagnosis refits this
+    lookup under every gel geometry it tries, so this cost is paid dozens of times: float32
+    products over every pixel (flat pixels add zeros) against float64 over the contact pixels
+    gathered out, ``scripts/bench_response_fit.py`` measures both.
     """
     if surface.shape[0] != delta.shape[0] or surface.shape[-2:] != delta.shape[-2:]:
         raise ValueError(f"surface {tuple(surface.shape)} and delta {tuple(delta.shape)} differ")
-    xtx = xty = None
     n_cols = response_design(surface[:1, :, :2, :2], gel_mm).shape[-1]
+    xtx = torch.zeros(n_cols, n_cols, dtype=torch.float64)
+    xty = torch.zeros(n_cols, 3, dtype=torch.float64)
     for k in range(0, surface.shape[0], chunk):
         x = response_design(surface[k : k + chunk], gel_mm).reshape(-1, n_cols)
-        y = delta[k : k + chunk].permute(0, 2, 3, 1).reshape(-1, 3)
-        # flat, untouched pixels have every feature 0: they add nothing to either sum
-        active = x.abs().amax(1) > 0
-        x, y = x[active].double(), y[active].double()
-        a, b = x.T @ x, x.T @ y
-        xtx, xty = (a, b) if xtx is None else (xtx + a, xty + b)
-    assert xtx is not None and xty is not None
+        y = delta[k : k + chunk].permute(0, 2, 3, 1).reshape(-1, 3).float()
+        xtx += (x.T @ x).double()
+        xty += (x.T @ y).double()
     if not bool(torch.diagonal(xtx).gt(0).any()):
         raise ValueError("fit_response: no pixel has a contact or a slope to fit on")
     lam = ridge * float(torch.diagonal(xtx).mean())
-    w = torch.linalg.solve(xtx + lam * torch.eye(xtx.shape[0], dtype=xtx.dtype), xty)
+    w = torch.linalg.solve(xtx + lam * torch.eye(n_cols, dtype=xtx.dtype), xty)
     n_feat = w.shape[0] // 6
     return w.reshape(n_feat, 6, 3).permute(0, 2, 1).numpy()  # (F, 3, 6)
 
