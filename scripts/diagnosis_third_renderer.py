@@ -1,7 +1,7 @@
 """The gap diagnosis on pairs from a third renderer, written apart from both of ours.
 
     python scripts/diagnosis_third_renderer.py [--cases blur,jpeg] [--variant own|composited]
-        [--read-noise 1.5] [--pairs 200] [--seed 0]
+        [--read-noise 1.5] [--noisy-sim] [--pairs 200] [--seed 0]
 
 ``validate-diagnosis`` checks the diagnosis on our surrogate and on ``diagnose.foreign``;
 both were written by people who knew the catalogue. This renderer shares no code with
@@ -12,8 +12,10 @@ as a real camera has. Each case plants one effect its own way: a pillbox (disk) 
 PSF, a gel sag by an exponential kernel, a sub-pixel shift plus a rotation by cubic
 interpolation, a polynomial vignetting, Pillow's JPEG at the stored 64 px, per-channel LED
 gains, a tone curve. Camera effects act on the no-contact frame too. ``none`` plants
-nothing (only the sensor's noise). Prints one markdown row per case: what the diagnosis
-names first, its selection with shrinks and confusable sets, and the unexplained share.
+nothing (only the sensor's noise). ``--noisy-sim`` gives the sim frames noise of the same
+law too (independent draws), as TACTO adds to its renders. Prints one markdown row per
+case: what the diagnosis names first, its selection with shrinks and confusable sets, and
+the unexplained share.
 """
 
 from __future__ import annotations
@@ -109,7 +111,7 @@ def _sag(depth: np.ndarray, length_px: float, skirt: float) -> np.ndarray:
 
 
 def third_renderer_pairs(
-    case: str, n: int, seed: int, variant: str, read_noise: float
+    case: str, n: int, seed: int, variant: str, read_noise: float, noisy_sim: bool = False
 ) -> PairedData:
     """``n`` braille contacts: sim by the plain renderer, real with ``case`` planted."""
     _, p = CASES[case]
@@ -145,6 +147,10 @@ def third_renderer_pairs(
     change = _shade(real_depth, gel, elevation, specular) - _shade(flat, gel, elevation, specular)
     light = gain[:, None, None] * frame
 
+    def noise(x: np.ndarray) -> np.ndarray:
+        shot = np.sqrt(np.clip(x, 0, None) * 0.02)
+        return x + rng.normal(0, read_noise, x.shape) + rng.normal(0, 1, x.shape) * shot
+
     def camera(x: np.ndarray, noisy: bool) -> np.ndarray:
         if case == "vignetting":
             xm, ym = _pixel_mm(gel)
@@ -153,8 +159,7 @@ def third_renderer_pairs(
         if case == "blur":
             x = ndimage.convolve(x, _pillbox(p["radius_px"])[None, None], mode="nearest")
         if noisy:
-            shot = np.sqrt(np.clip(x, 0, None) * 0.02)
-            x = x + rng.normal(0, read_noise, x.shape) + rng.normal(0, 1, x.shape) * shot
+            x = noise(x)
         if case == "gamma":
             x = 255 * (np.clip(x, 0, 255) / 255) ** (1 / p["gamma"])
         if case == "jpeg":
@@ -164,7 +169,8 @@ def third_renderer_pairs(
     real = camera(light[None] + gain[None, :, None, None] * change, True)
     measured = camera(light[None], False)[0]  # the averaged no-contact frame
     own = frame + np.array([10.0, -8.0, 5.0])[:, None, None]
-    sim = np.clip(np.rint((own if variant == "own" else measured)[None] + sim_change), 0, 255)
+    sim = (own if variant == "own" else measured)[None] + sim_change
+    sim = np.clip(np.rint(noise(sim) if noisy_sim else sim), 0, 255)
 
     def tensor(a: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(a)).float()
@@ -185,10 +191,12 @@ def main() -> None:
     parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--variant", choices=("own", "composited"), default="own")
     parser.add_argument("--read-noise", type=float, default=1.5, help="grey levels, every frame")
+    parser.add_argument("--noisy-sim", action="store_true", help="the sim frames noisy too")
     parser.add_argument("--pairs", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    print(f"variant {args.variant}, read noise {args.read_noise}, {args.pairs} pairs")
+    noisy = "real and sim" if args.noisy_sim else "real only"
+    print(f"variant {args.variant}, read noise {args.read_noise} ({noisy}), {args.pairs} pairs")
     print(
         "| case | planted | background share | selected (shrink ~ confusable) | first | "
         "unexplained | flagged | s |"
@@ -196,7 +204,9 @@ def main() -> None:
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for case in args.cases.split(","):
         start = time.perf_counter()
-        data = third_renderer_pairs(case, args.pairs, args.seed, args.variant, args.read_noise)
+        data = third_renderer_pairs(
+            case, args.pairs, args.seed, args.variant, args.read_noise, args.noisy_sim
+        )
         perm = torch.randperm(args.pairs, generator=torch.Generator().manual_seed(args.seed))
         half = args.pairs // 2
         result = explain_gap(data, perm[:half], perm[half:], seed=args.seed, progress=False)
