@@ -1,6 +1,6 @@
 """The gap diagnosis on pairs from a third renderer, written apart from both of ours.
 
-    python scripts/diagnosis_third_renderer.py [--cases blur,jpeg] [--variant own|composited]
+    python scripts/diagnosis_third_renderer.py [--cases blur,jpeg] [--variant own|flat|composited]
         [--read-noise 1.5] [--noisy-sim] [--pairs 200] [--seed 0]
 
 ``validate-diagnosis`` checks the diagnosis on our surrogate and on ``diagnose.foreign``;
@@ -13,9 +13,11 @@ PSF, a gel sag by an exponential kernel, a sub-pixel shift plus a rotation by cu
 interpolation, a polynomial vignetting, Pillow's JPEG at the stored 64 px, per-channel LED
 gains, a tone curve. Camera effects act on the no-contact frame too. ``none`` plants
 nothing (only the sensor's noise). ``--noisy-sim`` gives the sim frames noise of the same
-law too (independent draws), as TACTO adds to its renders. Prints one markdown row per
-case: what the diagnosis names first, its selection with shrinks and confusable sets, and
-the unexplained share.
+law too (independent draws), as TACTO adds to its renders. The sim's own no-contact frame
+is the real one with a colour cast (``own``), a uniform grey (``flat``, a bare renderer's),
+or the sim is composited onto the measured frame (``composited``, TACTO's recipe). Prints
+one markdown row per case: what the diagnosis names first, its selection with shrinks and
+confusable sets, and the unexplained share.
 """
 
 from __future__ import annotations
@@ -169,7 +171,9 @@ def third_renderer_pairs(
     real = camera(light[None] + gain[None, :, None, None] * change, True)
     measured = camera(light[None], False)[0]  # the averaged no-contact frame
     own = frame + np.array([10.0, -8.0, 5.0])[:, None, None]
-    sim = (own if variant == "own" else measured)[None] + sim_change
+    if variant == "flat":
+        own = np.full_like(frame, 128.0)
+    sim = (measured if variant == "composited" else own)[None] + sim_change
     sim = np.clip(np.rint(noise(sim) if noisy_sim else sim), 0, 255)
 
     def tensor(a: np.ndarray) -> torch.Tensor:
@@ -180,7 +184,7 @@ def third_renderer_pairs(
         sim=tensor(sim),
         real=tensor(real),
         background=tensor(measured),
-        sim_background=tensor(np.clip(np.rint(own), 0, 255)) if variant == "own" else None,
+        sim_background=None if variant == "composited" else tensor(np.clip(np.rint(own), 0, 255)),
         labels=[bank.chars[i] for i in poses.labels.tolist()],
         names=[f"contact_{i:04d}" for i in range(n)],
     )
@@ -189,7 +193,7 @@ def third_renderer_pairs(
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=",".join(CASES))
-    parser.add_argument("--variant", choices=("own", "composited"), default="own")
+    parser.add_argument("--variant", choices=("own", "flat", "composited"), default="own")
     parser.add_argument("--read-noise", type=float, default=1.5, help="grey levels, every frame")
     parser.add_argument("--noisy-sim", action="store_true", help="the sim frames noisy too")
     parser.add_argument("--pairs", type=int, default=200)
