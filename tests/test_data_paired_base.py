@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from tactile_bench.data.ball_presses import BallPresses
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.paired import Pairs
 from tactile_bench.data.pairs import PairSet
@@ -230,6 +231,47 @@ def test_paired_data_subsets_and_foregrounds_through_the_base() -> None:
         PairedData(toy.depth, data.sim, data.real, real_bg[None], None, data.labels, data.names)
     with pytest.raises(TactileBenchError, match="PairedData: names must have one entry per pair"):
         PairedData(toy.depth, data.sim, data.real, real_bg, None, data.labels, ["x"])
+
+
+def _presses(**changes: Any) -> BallPresses:
+    """N presses at a 4:3 size (H != W: the packs' frames are not square); no sim images."""
+    toy = _toy()
+    parts: dict[str, Any] = {
+        "depth": toy.depth[..., :6],
+        "real": toy.real[..., :6].float(),
+        "background": toy.real_background[..., :6].float(),
+        "centres_px": np.arange(2 * N, dtype=np.float64).reshape(N, 2),
+        "radii_px": np.arange(N, dtype=np.float64) + 10,
+        "pixmm": 0.05,
+        "frame_hw": (480, 640),
+        "ball_radius_mm": 2.0,
+        "sensor": "gelsight",
+        "source": Path("pack"),
+    }
+    return BallPresses(**(parts | changes))
+
+
+def test_ball_presses_subset_and_foreground_through_the_base() -> None:
+    presses = _presses()
+    assert isinstance(presses, Pairs) and BallPresses.subset is Pairs.subset
+    assert len(presses) == N and presses.index.tolist() == list(range(N))
+    for idx in (torch.tensor([False, True, False, True, False]), [1, 3], slice(1, 4, 2)):
+        sub = presses.subset(idx)
+        assert sub.names == ["press001", "press003"] and sub.radii_px.tolist() == [11.0, 13.0]
+        assert sub.centres_px.tolist() == [[2.0, 3.0], [6.0, 7.0]]
+        assert torch.equal(sub.real, presses.real[[1, 3]]) and sub.background is presses.background
+        assert (sub.pixmm, sub.frame_hw, sub.gel_mm) == (0.05, (480, 640), presses.gel_mm)
+    again = presses.subset([3, 1]).subset([1])  # pack positions survive a second subset
+    assert again.names == ["press001"] and again.index.tolist() == [1]
+    want = image_to_foreground(presses.real, presses.background)
+    assert torch.equal(presses.foreground(), want)
+    assert presses.sim is None
+    with pytest.raises(TactileBenchError, match="BallPresses: no sim images in this set"):
+        presses.foreground("sim")
+    with pytest.raises(TactileBenchError, match=r"BallPresses: background must be \(3,S,S\)"):
+        _presses(background=torch.zeros(3, S, S))
+    with pytest.raises(TactileBenchError, match="BallPresses: radii_px must have one entry per"):
+        _presses(radii_px=np.ones(N - 1))
 
 
 def test_a_braille_set_and_its_paired_data_have_the_same_foregrounds() -> None:

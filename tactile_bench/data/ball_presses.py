@@ -24,11 +24,13 @@ import importlib.util
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from tactile_bench.data.paired import Pairs
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import load_npz
 
@@ -77,13 +79,23 @@ def resolve_pack(source: str | Path) -> tuple[Path, str]:
 
 
 @dataclass
-class BallPresses:
+class BallPresses(Pairs):
     """N real presses of a sphere with their depth, at the size asked for.
 
     depth: (N, 1, H, W) gel penetration in mm; real: (N, 3, H, W) and background (3, H, W)
     in 0..255, each area-averaged from the native frame. ``centres_px`` (N, 2) x, y and
     ``radii_px`` (N,) are the annotations in native pixels; ``frame_hw`` the native size.
+
+    Shape checks, ``subset`` and ``foreground`` are ``data.paired.Pairs``'s. A press has no
+    sim image: ``sim`` is None for every set, so ``foreground("sim")`` says so.
     """
+
+    PER_PAIR: ClassVar[tuple[str, ...]] = ("depth", "real")
+    FRAMES: ClassVar[tuple[str, ...]] = ("background",)
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"real": "background"}
+    OPTIONAL: ClassVar[frozenset[str]] = frozenset({"sim"})
+    #: the base's sim images: a real press has none (not a field: constructors are unchanged)
+    sim: ClassVar[None] = None
 
     depth: torch.Tensor
     real: torch.Tensor
@@ -100,9 +112,7 @@ class BallPresses:
     def __post_init__(self) -> None:
         if self.index is None:
             self.index = np.arange(len(self.radii_px))
-
-    def __len__(self) -> int:
-        return len(self.radii_px)
+        self._check_pairs(centres_px=self.centres_px, radii_px=self.radii_px, index=self.index)
 
     @property
     def gel_mm(self) -> tuple[float, float]:
@@ -122,21 +132,14 @@ class BallPresses:
         idx = list(range(len(self)))
         return idx[0::2], idx[1::2]
 
-    def subset(self, idx: list[int]) -> BallPresses:
-        """The presses ``idx`` (same background, parameters and source)."""
-        return BallPresses(
-            self.depth[idx],
-            self.real[idx],
-            self.background,
-            self.centres_px[idx],
-            self.radii_px[idx],
-            self.pixmm,
-            self.frame_hw,
-            self.ball_radius_mm,
-            self.sensor,
-            self.source,
-            self.index[idx],
-        )
+    def _subset_own(self, index: torch.Tensor | slice) -> dict[str, Any]:
+        """The annotations and pack positions at ``index`` (numpy arrays, indexed as numpy)."""
+        at = index if isinstance(index, slice) else index.numpy()
+        return {
+            "centres_px": self.centres_px[at],
+            "radii_px": self.radii_px[at],
+            "index": self.index[at],
+        }
 
 
 def _size_hw(size: int | tuple[int, int], frame_hw: tuple[int, int]) -> tuple[int, int]:

@@ -1,11 +1,12 @@
 """The one base of the paired-data containers: sim and real images of the same contacts.
 
-``data.braille.BrailleSet``, ``data.pairs.PairSet`` and ``diagnose.paired.PairedData`` share
-a core: gel depth (N,1,S,S) mm, sim and real images (N,3,S,S) and the no-contact frames
-(3,S,S) they were taken on. ``Pairs`` checks those shapes, counts and subsets the pairs and
-makes their foregrounds (through ``pixels.image_to_foreground``, the one formula), so each
-container keeps only what is its own. ``Pairs`` declares no dataclass fields: each container
-keeps its own constructor, whose argument order its callers rely on.
+``data.braille.BrailleSet``, ``data.pairs.PairSet``, ``diagnose.paired.PairedData`` and
+``data.ball_presses.BallPresses`` (real presses only) share a core: gel depth (N,1,S,S) mm,
+sim and real images (N,3,S,S) and the no-contact frames (3,S,S) they were taken on.
+``Pairs`` checks those shapes, counts and subsets the pairs and makes their foregrounds
+(through ``pixels.image_to_foreground``, the one formula), so each container keeps only
+what is its own. ``Pairs`` declares no dataclass fields: each container keeps its own
+constructor, whose argument order its callers rely on.
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ class Pairs:
     differs: its per-pair tensors (``PER_PAIR``), its single no-contact frames (``FRAMES``),
     which field is each kind's background (``BACKGROUNDS``) and which fields may be None
     (``OPTIONAL``). It overrides ``_subset_own`` for per-pair fields that are not tensors,
-    and ``_background`` when its backgrounds are not one frame per kind.
+    and ``_background`` when its backgrounds are not one frame per kind. A container that
+    never has sim images (real presses) sets ``sim`` as a class variable None, optional.
     """
 
     PER_PAIR: ClassVar[tuple[str, ...]] = ("depth", "sim", "real")
