@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import logging
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import torch
 from PIL import Image
 
+from tactile_bench.data.pairs import PairSet
 from tactile_bench.diagnose.paired import (
     PairedData,
     data_hash,
@@ -104,6 +108,39 @@ def test_tactile_diffusion_layout(tmp_path: Path) -> None:
     assert torch.allclose(data.depth, torch.full_like(data.depth, 0.6))
     assert data.sim.std(0).max() < 1e-4  # every pair renders the same, no noise
     assert torch.allclose(data.background, torch.full((3, 32, 32), 128.0))
+
+
+@pytest.mark.parametrize("second", [0, 128])  # the second frame: another, or the same again
+def test_tactile_diffusion_pairs_on_several_frames_warn_that_the_first_serves_all(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+    second: int,
+) -> None:
+    """``PairedData`` holds one no-contact frame: pairs taken on more than one are warned of."""
+    from tactile_bench.data import tactile_diffusion
+
+    load = tactile_diffusion.load_braille_pairs
+
+    def on_two_frames(*args: Any, **kwargs: Any) -> PairSet:
+        pairs = load(*args, **kwargs)  # the release has one frame: give half the pairs another
+        frames = torch.cat([pairs.real_background, torch.full_like(pairs.real_background, second)])
+        index = torch.arange(len(pairs)) % 2
+        return replace(pairs, real_background=frames, real_bg_index=index)
+
+    monkeypatch.setattr(tactile_diffusion, "load_braille_pairs", on_two_frames)
+    # the CLI's logger stops propagation; let the records reach pytest's handler
+    monkeypatch.setattr(logging.getLogger("tactile_bench"), "propagate", True)
+    make_braille_layout(tmp_path / "braille", per_letter=1)
+    with caplog.at_level(logging.WARNING, logger="tactile_bench.diagnose.paired"):
+        data = load_paired(tmp_path, size=16)
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    if second == 128:  # equal to the release's grey frame: nothing to say
+        assert warnings == []
+    else:
+        assert len(warnings) == 1
+        assert "2 distinct no-contact frames; the first pair's is used for all" in warnings[0]
+    assert torch.equal(data.background, torch.full((3, 16, 16), 128.0))  # the first pair's
 
 
 # ----------------------------------------------------------------------------- bad input

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -39,12 +40,15 @@ import torch
 from PIL import Image, UnidentifiedImageError
 
 from tactile_bench.data.paired import Pairs
+from tactile_bench.data.pairs import PairSet
 from tactile_bench.data.pixels import to_uint8
 from tactile_bench.data.tactile_diffusion import braille_root
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL
 from tactile_bench.guard.images import MIN_SIDE, open_header
 from tactile_bench.guard.limits import check_memory
+
+log = logging.getLogger(__name__)
 
 #: labels written under another folder name (the number sign is awkward in shells and URLs)
 NAMED_LABEL_DIRS: dict[str, str] = {"#": "number_sign"}
@@ -325,11 +329,29 @@ def _load_tactile_diffusion(base: Path, size: int) -> PairedData:
         depth=pairs.depth.float(),
         sim=sim,
         real=pairs.real.float(),
-        background=pairs.real_background[0].float(),
+        background=_first_background(pairs, base).float(),
         sim_background=sim_bg,
         labels=[CHARACTERS[int(i)] for i in pairs.meta["label"]],
         names=names,
     )
+
+
+def _first_background(pairs: PairSet, base: Path) -> torch.Tensor:
+    """The first pair's no-contact frame, which ``PairedData`` (one frame for all) keeps.
+
+    Warns when the pairs were taken on more than one distinct frame: the others' foregrounds
+    are then measured against a frame they were not recorded on.
+    """
+    used = pairs.real_background[torch.unique(pairs.real_bg_index)]
+    distinct = len(torch.unique(used.flatten(1), dim=0))
+    if distinct > 1:
+        log.warning(
+            "%s: the pairs carry %d distinct no-contact frames; the first pair's is used "
+            "for all of them",
+            base,
+            distinct,
+        )
+    return pairs.real_background[pairs.real_bg_index[0]]
 
 
 def load_paired(root: str | os.PathLike, size: int = 64) -> PairedData:
