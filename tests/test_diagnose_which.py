@@ -391,3 +391,17 @@ def test_a_tone_curve_keeps_the_noise_drawn_before_it(bank) -> None:
     gen = torch.Generator().manual_seed(0)
     spread = (render(base, noisy, gen) - render(base, tone)).std()
     assert float(spread) > 2.0
+
+
+def test_an_effect_the_camera_noise_masks_is_found_once_the_noise_is_modelled(bank) -> None:
+    # strong read noise owns the texture part of the first gap: the optical response alone
+    # removes under 2% of it, so it was dropped before the noise was ever modelled
+    planted = {"optical_response": {"blend": 0.6}, "camera_noise": {"read_noise": 14.0}}
+    data = _pairs(bank, planted, n=24)
+    idx = torch.randperm(24, generator=torch.Generator().manual_seed(0))
+    result = explain_gap(
+        data, idx[:12], idx[12:], candidates=["camera_noise", "optical_response"], progress=False
+    )
+    optics_alone = next(r for r in result.singles if r.effect == "optical_response")
+    assert optics_alone.gap_before - optics_alone.gap_after < 0.02 * result.gap_before
+    assert [r.effect for r in result.ranking] == ["camera_noise", "optical_response"]

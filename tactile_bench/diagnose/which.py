@@ -239,8 +239,11 @@ def explain_gap(
     singles = sorted(
         (_row(n, p, gap0, g, seed) for n, (p, g) in fits.items()), key=lambda r: -r.shrink
     )
-    # a candidate that alone removes less than the threshold is not refitted in later rounds
-    useful = [r.effect for r in singles if g0 - r.gap_after >= threshold]
+    # a candidate that alone removes nothing is not refitted in later rounds; one below the
+    # threshold still is (screened first, ``_worth_refitting``): camera noise that dominates
+    # the first gap masks a deterministic effect's single share (an optical response under
+    # read noise of 13 grey levels: 0.2%) until the noise is modelled
+    useful = [r.effect for r in singles if g0 - r.gap_after > 0]
     n_screen = min(len(fit_idx), SCREEN_PAIRS)
     screen = (base_fit.subset(torch.arange(n_screen)), target_fit.subset(torch.arange(n_screen)))
 
@@ -256,11 +259,18 @@ def explain_gap(
             break
         ranking.append(row)
         best, (params, after) = row.effect, options[row.effect]
+        unmasked = is_stochastic({best: params}) and not is_stochastic(selected)
         selected[best] = params
         current = after
+        if unmasked:
+            # the share asked of an effect is of the gap a model can remove: a camera's own
+            # randomness (the floor, as ``unexplained`` counts it) is not part of it
+            threshold = MIN_SHARE * max(g0 - _own_randomness(base_held, selected, seed), 0.0)
         if float(current.mean()) < threshold:  # nothing left that could pass the threshold
             break
-        rest = _worth_refitting([n for n in useful if n not in selected], fits, selected, screen)
+        rest = [n for n in useful if n not in selected]
+        if not unmasked:  # the single fits were made against a gap the noise dominated
+            rest = _worth_refitting(rest, fits, selected, screen)
         options = {}
         for name in tqdm(rest, desc="refit with selected", disable=not progress or not rest):
             p = fit_candidate(name, base_fit, target_fit, prior=selected, seed=seed)
@@ -271,13 +281,7 @@ def explain_gap(
         fit_gaps = [model_gap(base_fit, target_fit, e, seed).mean() for e in (joint, selected)]
         if float(fit_gaps[0]) < float(fit_gaps[1]):
             selected, current = joint, model_gap(base_held, target_held, joint, seed)
-    floor = 0.0
-    if is_stochastic(selected):
-        # the gap the selected model would leave on data drawn from itself: its own
-        # randomness, which no diagnosis can remove, is not counted as unexplained
-        pseudo = render(base_held, selected, torch.Generator().manual_seed(seed + 99))
-        floor = float(model_gap(base_held, Target.of(pseudo), selected, seed).mean())
-    floor = min(max(floor, 0.0), float(current.mean()))
+    floor = min(max(_own_randomness(base_held, selected, seed), 0.0), float(current.mean()))
     unexplained = (float(current.mean()) - floor) / (g0 - floor) if g0 > floor else 0.0
     table = None
     if "optical_response" in selected:
@@ -299,6 +303,16 @@ def explain_gap(
         background_note=background_note,
         sim_optics=sim_optics_report(base_fit),
     )
+
+
+def _own_randomness(base: Base, selected: Mapping[str, Mapping[str, float]], seed: int) -> float:
+    """The gap the ``selected`` model leaves on data drawn from itself (0 when it draws
+    nothing): its own randomness, which no diagnosis can remove, so it is not counted as
+    unexplained."""
+    if not is_stochastic(selected):
+        return 0.0
+    pseudo = render(base, selected, torch.Generator().manual_seed(seed + 99))
+    return float(model_gap(base, Target.of(pseudo), selected, seed).mean())
 
 
 def _pick(
