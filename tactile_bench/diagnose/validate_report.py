@@ -42,7 +42,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "gap_metric": GAP_METRIC,
         "rules": {
             "selection": f"adds an effect while it removes >= {MIN_SHARE:.0%} of the initial "
-            "held-out gap and its bootstrap 95% CI lower bound is > 0",
+            "held-out gap (once a stochastic effect is selected, of that gap less the "
+            "selected model's own randomness) and its bootstrap 95% CI lower bound is > 0",
             "flag": f"residual flagged when the unexplained share > {FLAG_UNEXPLAINED}",
             "blamed_with_high_confidence": "an out-of-catalogue case with an effect selected "
             "and the residual not flagged",

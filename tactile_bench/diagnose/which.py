@@ -5,8 +5,9 @@ Every candidate of the catalogue (``candidates.CANDIDATES``) is fitted alone on 
 removes (``singles``). Greedy forward selection then adds, round by round, the candidate
 that removes most of what is left, refitted with the ones already chosen (see
 ``_worth_refitting``), while it removes
-more than ``MIN_SHARE`` of the initial gap and the lower end of its bootstrap 95% CI
-(held-out pairs resampled) is above zero. With two or more selected, their differentiable
+more than ``MIN_SHARE`` of the initial gap (once camera noise is selected: of the initial gap
+less the noise's own floor, the part a model can remove) and the lower end of its bootstrap
+95% CI (held-out pairs resampled) is above zero. With two or more selected, their differentiable
 parameters are refitted jointly. ``unexplained`` is what is left, as a share of the initial
 gap; above ``FLAG_UNEXPLAINED`` the residual is flagged: some cause outside the candidate
 set (or an unfittable one) carries it. The diagnosis reads paired data only.
