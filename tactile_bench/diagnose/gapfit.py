@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -191,14 +191,7 @@ def fit_candidate(
     """
     cand = get_candidate(name)
     budget = budget or FitBudget()
-    prior = dict(prior or {})
-    # fixed pose and geometry effects acting before this candidate's part of image formation:
-    # applied once, not every step (a codec's quality search renders hundreds of times)
-    earlier = {"pose"} if cand.acts_on == "geometry" else {"pose", "geometry"}
-    baked = {n: p for n, p in prior.items() if CANDIDATES[n].acts_on in earlier}
-    if baked and cand.acts_on != "pose" and not _random(baked):
-        base = bake_fixed(base, baked)
-        prior = {n: p for n, p in prior.items() if n not in baked}
+    base, prior = _bake_earlier(cand.acts_on, base, dict(prior or {}))
     gen = torch.Generator().manual_seed(seed)
     order = torch.randperm(len(base), generator=gen)
     sweep_idx, adam_idx = order[: budget.sweep_pairs], order[: budget.adam_pairs]
@@ -224,44 +217,19 @@ def fit_candidate(
             seen[point] = value
         return value
 
-    def sweep(names: list[str], levels: tuple[float, ...], idx: torch.Tensor) -> bool:
-        best = float(loss(u, idx))
-        moved = False
-        for n in names:
-            for level in levels:
-                trial = {**u, n: level}
-                value = float(loss(trial, idx))
-                if value < best - 1e-9:
-                    best, u[n], moved = value, level, True
-        return moved
-
     diff = [s.name for s in cand.searched if s.differentiable]
     whole = [s for s in cand.searched if s.integer and s.high - s.low <= MAX_WHOLE_VALUES]
     other = [s.name for s in cand.searched if not s.differentiable and s not in whole]
     with torch.no_grad():
-        # every combination of whole values on the sweep's pairs, the best few on more:
-        # jointly, since a codec's quality that fits one frame size misfits the other
-        grids = [
-            [s.to_unit(v) for v in range(math.ceil(s.low), math.floor(s.high) + 1)] for s in whole
-        ]
-        joint = math.prod(len(g) for g in grids) <= MAX_WHOLE_POINTS
-        for names, values in (
-            [([s.name for s in whole], grids)]
-            if joint
-            else [([s.name], [g]) for s, g in zip(whole, grids, strict=True)]
-        ):
-            points = [dict(zip(names, lv, strict=True)) for lv in itertools.product(*values)]
-            scores = sorted(
-                ((float(loss({**u, **pt}, sweep_idx)), i) for i, pt in enumerate(points)),
-                key=lambda t: t[0],
-            )
-            best = min((float(loss({**u, **points[i]}, adam_idx)), i) for _, i in scores[:3])
-            u.update(points[best[1]])
+        _whole_values(
+            u, whole, lambda v: float(loss(v, sweep_idx)), lambda v: float(loss(v, adam_idx))
+        )
         if len(other) <= MAX_GRID_PARAMS:
             _grid(u, other, lambda v: float(loss(v, sweep_idx)))
         else:
-            sweep(other, SWEEP_LEVELS, sweep_idx)
-        sweep(diff, DIFF_SWEEP_LEVELS, sweep_idx)  # only to leave flat or local minima
+            _sweep(u, other, SWEEP_LEVELS, lambda v: float(loss(v, sweep_idx)))
+        # only to leave flat or local minima
+        _sweep(u, diff, DIFF_SWEEP_LEVELS, lambda v: float(loss(v, sweep_idx)))
     _adam(u, diff, lambda v: loss(v, adam_idx), budget)
     if other:
         # few searched values: refine on more pairs; many: on the sweep's (cost)
@@ -271,6 +239,60 @@ def fit_candidate(
         if moved and diff:
             _adam(u, diff, lambda v: loss(v, adam_idx), budget, steps=budget.adam_steps // 2)
     return {s.name: s.report(float(u[s.name])) for s in cand.searched}
+
+
+def _bake_earlier(
+    acts_on: str, base: Base, prior: dict[str, Mapping[str, float]]
+) -> tuple[Base, dict[str, Mapping[str, float]]]:
+    """``base`` with the fixed pose and geometry effects of ``prior`` that act before
+    ``acts_on`` applied once, and the rest of ``prior``: not applied at every step (a
+    codec's quality search renders hundreds of times)."""
+    earlier = {"pose"} if acts_on == "geometry" else {"pose", "geometry"}
+    baked = {n: p for n, p in prior.items() if CANDIDATES[n].acts_on in earlier}
+    if baked and acts_on != "pose" and not _random(baked):
+        return bake_fixed(base, baked), {n: p for n, p in prior.items() if n not in baked}
+    return base, prior
+
+
+def _sweep(
+    u: dict[str, object],
+    names: list[str],
+    levels: tuple[float, ...],
+    loss_fn: Callable[[dict[str, object]], float],
+) -> bool:
+    """Coordinate sweep: each of ``names`` in turn moved to its best of ``levels``."""
+    best, moved = loss_fn(u), False
+    for n in names:
+        for level in levels:
+            value = loss_fn({**u, n: level})
+            if value < best - 1e-9:
+                best, u[n], moved = value, level, True
+    return moved
+
+
+def _whole_values(
+    u: dict[str, object],
+    whole: list[Any],
+    quick_loss: Callable[[dict[str, object]], float],
+    loss_on_more: Callable[[dict[str, object]], float],
+) -> None:
+    """Integer parameters (``whole``, searched specs) set to their best combination: every
+    combination scored by ``quick_loss`` (the sweep's pairs), the best three by
+    ``loss_on_more``. Jointly when there are at most ``MAX_WHOLE_POINTS`` (a codec's quality
+    that fits one frame size misfits the other), else one parameter at a time."""
+    grids = [[s.to_unit(v) for v in range(math.ceil(s.low), math.floor(s.high) + 1)] for s in whole]
+    joint = math.prod(len(g) for g in grids) <= MAX_WHOLE_POINTS
+    for names, values in (
+        [([s.name for s in whole], grids)]
+        if joint
+        else [([s.name], [g]) for s, g in zip(whole, grids, strict=True)]
+    ):
+        points = [dict(zip(names, lv, strict=True)) for lv in itertools.product(*values)]
+        scores = sorted(
+            ((quick_loss({**u, **pt}), i) for i, pt in enumerate(points)), key=lambda t: t[0]
+        )
+        best = min((loss_on_more({**u, **points[i]}), i) for _, i in scores[:3])
+        u.update(points[best[1]])
 
 
 def _grid(u: dict[str, object], names: list[str], loss_fn: Any) -> None:

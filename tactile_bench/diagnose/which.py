@@ -219,8 +219,7 @@ def explain_gap(
     fit_idx = _check_split(data, fit_idx, "fit")
     held_idx = _check_split(data, held_idx, "held-out")
     names = list(DEFAULT_CANDIDATES if candidates is None else candidates)
-    for n in names:
-        get_candidate(n)
+    [get_candidate(n) for n in names]  # an unknown name is a one-line error before any fit
     cache: dict[str, torch.Tensor] = {}  # fitted response lookups, shared by both splits
     base_fit = make_base(data, fit_idx, lookup_from=fit_idx, lookup_cache=cache)
     base_held = make_base(data, held_idx, lookup_from=fit_idx, lookup_cache=cache)
@@ -231,12 +230,7 @@ def explain_gap(
     background, background_note = _background_line(data, held_idx, target_held, gap0, seed)
     threshold = MIN_SHARE * g0
 
-    fits: dict[str, tuple[dict[str, float], torch.Tensor]] = {}
-    bar = tqdm(names, desc="fit candidates", unit="effect", disable=not progress)
-    for name in bar:
-        bar.set_postfix_str(name)
-        params = fit_candidate(name, base_fit, target_fit, seed=seed)
-        fits[name] = (params, model_gap(base_held, target_held, {name: params}, seed))
+    fits = _fit_each(names, {}, (base_fit, target_fit), (base_held, target_held), seed, progress)
     singles = sorted(
         (_row(n, p, gap0, g, seed) for n, (p, g) in fits.items()), key=lambda r: -r.shrink
     )
@@ -272,16 +266,42 @@ def explain_gap(
         rest = [n for n in useful if n not in selected]
         if not unmasked:  # the single fits were made against a gap the noise dominated
             rest = _worth_refitting(rest, fits, selected, screen)
-        options = {}
-        for name in tqdm(rest, desc="refit with selected", disable=not progress or not rest):
-            p = fit_candidate(name, base_fit, target_fit, prior=selected, seed=seed)
-            options[name] = (p, model_gap(base_held, target_held, {**selected, name: p}, seed))
+        options = _fit_each(
+            rest, selected, (base_fit, target_fit), (base_held, target_held), seed, progress
+        )
     if len(selected) >= 2:
         joint = fit_jointly(selected, base_fit, target_fit, seed=seed)
         # kept if it fits the fit split better: the held-out split only scores
         fit_gaps = [model_gap(base_fit, target_fit, e, seed).mean() for e in (joint, selected)]
         if float(fit_gaps[0]) < float(fit_gaps[1]):
             selected, current = joint, model_gap(base_held, target_held, joint, seed)
+    return _result(
+        ranking,
+        singles,
+        selected,
+        current,
+        g0,
+        names,
+        (background, background_note),
+        (base_fit, base_held),
+        seed,
+    )
+
+
+def _result(
+    ranking: list[EffectFit],
+    singles: list[EffectFit],
+    selected: dict[str, dict[str, float]],
+    current: torch.Tensor,
+    g0: float,
+    names: list[str],
+    background_line: tuple[EffectFit | None, str],
+    bases: tuple[Base, Base],
+    seed: int,
+) -> WhichResult:
+    """The "which" answer: what the selection leaves above the model's own randomness, as a
+    share of the first gap, and the fitted response table when the response is selected."""
+    (background, background_note), (base_fit, base_held) = background_line, bases
     floor = min(max(_own_randomness(base_held, selected, seed), 0.0), float(current.mean()))
     unexplained = (float(current.mean()) - floor) / (g0 - floor) if g0 > floor else 0.0
     table = None
@@ -304,6 +324,26 @@ def explain_gap(
         background_note=background_note,
         sim_optics=sim_optics_report(base_fit),
     )
+
+
+def _fit_each(
+    names: Sequence[str],
+    prior: Mapping[str, Mapping[str, float]],
+    fit: tuple[Base, Target],
+    held: tuple[Base, Target],
+    seed: int,
+    progress: bool,
+) -> dict[str, tuple[dict[str, float], torch.Tensor]]:
+    """Each of ``names`` fitted on ``fit`` with ``prior`` in place: its parameters and the
+    held-out per-pair gap of ``prior`` + it."""
+    out: dict[str, tuple[dict[str, float], torch.Tensor]] = {}
+    desc = "refit with selected" if prior else "fit candidates"
+    bar = tqdm(names, desc=desc, unit="effect", disable=not progress or not names)
+    for name in bar:
+        bar.set_postfix_str(name)
+        params = fit_candidate(name, *fit, prior=prior or None, seed=seed)
+        out[name] = (params, model_gap(*held, {**prior, name: params}, seed))
+    return out
 
 
 def _own_randomness(base: Base, selected: Mapping[str, Mapping[str, float]], seed: int) -> float:
