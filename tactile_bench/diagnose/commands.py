@@ -264,6 +264,13 @@ VALIDATION_SUITES = ("own", "foreign", "both")
 
 def register(subparsers: Any) -> None:
     """Add ``diagnose``, ``export-pairs`` and ``validate-diagnosis``."""
+    _add_diagnose(subparsers)
+    _add_export_pairs(subparsers)
+    _add_validate(subparsers)
+
+
+def _add_diagnose(subparsers: Any) -> None:
+    """``diagnose PAIRED_DIR --out OUT_DIR``: where, which effect, how far."""
     diag = subparsers.add_parser(
         "diagnose",
         help="diagnose the sim-to-real gap of paired data: where, which effect, how far",
@@ -289,6 +296,9 @@ def register(subparsers: Any) -> None:
     diag.add_argument("--no-progress", action="store_true")
     diag.set_defaults(func=_cmd_diagnose)
 
+
+def _add_export_pairs(subparsers: Any) -> None:
+    """``export-pairs``: braille pairs (a run's, fresh ones, or real presses) as a paired layout."""
     exp = subparsers.add_parser(
         "export-pairs", help="write braille pairs in the diagnosis's paired layout"
     )
@@ -330,6 +340,9 @@ def register(subparsers: Any) -> None:
     exp.add_argument("--no-progress", action="store_true")
     exp.set_defaults(func=_cmd_export_pairs)
 
+
+def _add_validate(subparsers: Any) -> None:
+    """``validate-diagnosis``: plant withheld effects and check what the diagnosis names."""
     val = subparsers.add_parser(
         "validate-diagnosis",
         help="plant withheld effects in surrogate-real data and check the gap diagnosis",

@@ -105,6 +105,65 @@ def selected_effects(which: Any) -> dict[str, dict[str, float]]:
     return {fit.effect: dict(fit.params) for fit in which.ranking}
 
 
+def _where_before_after(held: PairedData, after: torch.Tensor) -> tuple[Any, Any]:
+    """The "where" analysis of the held-out pairs with plain sim, then with ``after``."""
+    held_after = PairedData(
+        held.depth, after, held.real, held.background, None, held.labels, held.names
+    )
+    return analyse_where(held), analyse_where(held_after)
+
+
+def _report(
+    data: PairedData,
+    which: Any,
+    where: Any,
+    held_where: tuple[Any, Any] | None,
+    far: dict[str, Any],
+    samples_idx: list[int],
+    source: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """report.json's content (all but ``split`` and ``timing_s``): every step's numbers."""
+    which_dict = which.to_dict()
+    report: dict[str, Any] = {
+        "version": tactile_bench.__version__,
+        "n_pairs": len(data),
+        "size": data.size,
+        "input": {**(source or {}), "hash": data_hash(data)},
+        "split": None,  # filled by the caller, which made the split
+        "where": where.summary,
+        "where_held": None
+        if held_where is None
+        else {"before": held_where[0].summary, "after": held_where[1].summary},
+        "gap_metric": which_dict.get("gap_metric", getattr(which, "gap_metric", None)),
+        "background": which_dict.get("background"),
+        "background_note": which_dict.get("background_note", ""),
+        "ranking": [f.to_dict() for f in which.ranking],
+        "singles": [f.to_dict() for f in which.singles],
+        "unexplained": which.unexplained,
+        "residual_flagged": which.residual_flagged,
+        "which": {  # anything else the "which" step reports
+            k: v
+            for k, v in which_dict.items()
+            if k
+            not in (
+                "ranking",
+                "singles",
+                "unexplained",
+                "residual_flagged",
+                "gap_metric",
+                "background",
+                "background_note",
+            )
+        },
+        "how_far": far,
+        "downstream": far.get("downstream"),
+        "samples": [
+            {"index": i, "label": data.labels[i], "name": data.names[i]} for i in samples_idx
+        ],
+    }
+    return report
+
+
 def diagnose(
     data: PairedData,
     out_dir: str | Path,
@@ -146,14 +205,10 @@ def diagnose(
     timing["how_far"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    held = data.subset(held_idx)
     held_where = None
     if effects:
         after = which_mod.apply_effects(data, effects, held_idx, seed, fit_idx)
-        held_after = PairedData(
-            held.depth, after, held.real, held.background, None, held.labels, held.names
-        )
-        held_where = (analyse_where(held), analyse_where(held_after))
+        held_where = _where_before_after(data.subset(held_idx), after)
     samples_idx = pick_samples(data, held_idx, seed=seed)
     sample_images = {
         "sim": data.sim[samples_idx],
@@ -164,49 +219,13 @@ def diagnose(
     }
     row_labels = [f"{data.labels[i] or '-'} / {data.names[i]}" for i in samples_idx]
 
-    which_dict = which.to_dict()
-    report: dict[str, Any] = {
-        "version": tactile_bench.__version__,
-        "n_pairs": len(data),
-        "size": data.size,
-        "input": {**(source or {}), "hash": data_hash(data)},
-        "split": {
-            "n_fit": len(fit_idx),
-            "n_held": len(held_idx),
-            "fit_fraction": fit_fraction,
-            "seed": seed,
-            "stratified_by": "label",
-        },
-        "where": where.summary,
-        "where_held": None
-        if held_where is None
-        else {"before": held_where[0].summary, "after": held_where[1].summary},
-        "gap_metric": which_dict.get("gap_metric", getattr(which, "gap_metric", None)),
-        "background": which_dict.get("background"),
-        "background_note": which_dict.get("background_note", ""),
-        "ranking": [f.to_dict() for f in which.ranking],
-        "singles": [f.to_dict() for f in which.singles],
-        "unexplained": which.unexplained,
-        "residual_flagged": which.residual_flagged,
-        "which": {  # anything else the "which" step reports
-            k: v
-            for k, v in which_dict.items()
-            if k
-            not in (
-                "ranking",
-                "singles",
-                "unexplained",
-                "residual_flagged",
-                "gap_metric",
-                "background",
-                "background_note",
-            )
-        },
-        "how_far": far,
-        "downstream": far.get("downstream"),
-        "samples": [
-            {"index": i, "label": data.labels[i], "name": data.names[i]} for i in samples_idx
-        ],
+    report = _report(data, which, where, held_where, far, samples_idx, source)
+    report["split"] = {
+        "n_fit": len(fit_idx),
+        "n_held": len(held_idx),
+        "fit_fraction": fit_fraction,
+        "seed": seed,
+        "stratified_by": "label",
     }
     timing["samples"] = time.perf_counter() - t
     t = time.perf_counter()

@@ -112,38 +112,33 @@ def _parts(
     return rows
 
 
-def analyse_where(
-    data: PairedData,
-    contact_mm: float = CONTACT_MM,
-    rim_px: int | None = None,
-    chunk: int = 256,
-) -> WhereResult:
-    """Split the squared error real - sim along region, band, channel, consistency, depth, label.
-
-    Shares in each axis sum to 1. ``summary["mse"]`` is the mean squared error per pixel
-    and channel (0..255 scale); ``maps`` holds the per-pixel error maps for the figures.
-    """
+def _accumulate(
+    data: PairedData, contact_mm: float, rim_px: int, chunk: int
+) -> dict[str, torch.Tensor]:
+    """Every sum the axes are split from, in one pass over the pairs, ``chunk`` at a time."""
     n, _, h, w = data.sim.shape
-    rim_px = rim_width_px(w) if rim_px is None else rim_px
     bands, band_names = band_index(h, w)
-    n_bands = len(band_names)
     radius_k = torch.sqrt(
         (torch.fft.fftfreq(h) * h)[:, None] ** 2 + (torch.fft.fftfreq(w) * w)[None, :] ** 2
     )
     radial_bin = radius_k.round().long().clamp(max=int(math.ceil(radius_k.max())))
-    n_radial = int(radial_bin.max()) + 1
 
-    region_err = torch.zeros(3, dtype=torch.float64)
-    region_area = torch.zeros(3, dtype=torch.float64)
-    band_err = torch.zeros(n_bands, dtype=torch.float64)
-    radial = torch.zeros(n_radial, dtype=torch.float64)
-    channel_err = torch.zeros(3, dtype=torch.float64)
-    per_pair = torch.zeros(n, dtype=torch.float64)
-    sum_abs = torch.zeros(h, w, dtype=torch.float64)
-    sum_signed = torch.zeros(3, h, w, dtype=torch.float64)
-    contact_freq = torch.zeros(h, w, dtype=torch.float64)
-    region_maps = torch.zeros(3, h, w, dtype=torch.float64)  # squared error per region
-    max_depth = torch.zeros(n, dtype=torch.float64)
+    def zeros(*shape: int) -> torch.Tensor:
+        return torch.zeros(*shape, dtype=torch.float64)
+
+    acc = {
+        "region_err": zeros(3),
+        "region_area": zeros(3),
+        "band_err": zeros(len(band_names)),
+        "radial": zeros(int(radial_bin.max()) + 1),
+        "channel_err": zeros(3),
+        "per_pair": zeros(n),
+        "sum_abs": zeros(h, w),
+        "sum_signed": zeros(3, h, w),
+        "contact_freq": zeros(h, w),
+        "region_maps": zeros(3, h, w),  # squared error per region
+        "max_depth": zeros(n),
+    }
     for start in range(0, n, chunk):
         sl = slice(start, start + chunk)
         diff = data.real[sl].float() - data.sim[sl].float()
@@ -151,41 +146,40 @@ def analyse_where(
         sq_pix = sq.sum(1)  # (B, H, W) summed over channels
         masks = region_masks(data.depth[sl].float(), contact_mm, rim_px)  # (B, 3, H, W)
         mf = masks.double()
-        region_err += (mf * sq_pix[:, None].double()).sum((0, 2, 3))
-        region_area += mf.sum((0, 2, 3))
-        region_maps += (mf * sq_pix[:, None].double()).sum(0)
+        acc["region_err"] += (mf * sq_pix[:, None].double()).sum((0, 2, 3))
+        acc["region_area"] += mf.sum((0, 2, 3))
+        acc["region_maps"] += (mf * sq_pix[:, None].double()).sum(0)
         power = torch.fft.fft2(diff).abs().square().sum(1).double() / (h * w)  # (B, H, W)
-        band_err += torch.zeros(n_bands, dtype=torch.float64).index_add_(
+        acc["band_err"] += zeros(len(band_names)).index_add_(
             0, bands.flatten(), power.sum(0).flatten()
         )
-        radial.index_add_(0, radial_bin.flatten(), power.sum(0).flatten())
-        channel_err += sq.double().sum((0, 2, 3))
-        per_pair[sl] = sq.double().mean((1, 2, 3))
-        sum_abs += diff.abs().mean(1).double().sum(0)
-        sum_signed += diff.double().sum(0)
-        contact_freq += masks[:, 0].double().sum(0)
-        max_depth[sl] = data.depth[sl].flatten(1).amax(1).double()
+        acc["radial"].index_add_(0, radial_bin.flatten(), power.sum(0).flatten())
+        acc["channel_err"] += sq.double().sum((0, 2, 3))
+        acc["per_pair"][sl] = sq.double().mean((1, 2, 3))
+        acc["sum_abs"] += diff.abs().mean(1).double().sum(0)
+        acc["sum_signed"] += diff.double().sum(0)
+        acc["contact_freq"] += masks[:, 0].double().sum(0)
+        acc["max_depth"][sl] = data.depth[sl].flatten(1).amax(1).double()
+    return acc
 
-    total = float(channel_err.sum())
-    mean_signed = sum_signed / n
-    systematic = float(mean_signed.square().sum()) * n  # sum over pairs of ||mean diff||^2
+
+def _axes(data: PairedData, acc: dict[str, torch.Tensor]) -> dict[str, Any]:
+    """Each axis's parts, largest first (``_parts``), from the sums of ``_accumulate``."""
+    n, _, h, w = data.sim.shape
+    bands, band_names = band_index(h, w)
+    total = float(acc["channel_err"].sum())
+    systematic = float((acc["sum_signed"] / n).square().sum()) * n  # sum of ||mean diff||^2
     consistency_err = np.array([systematic, max(total - systematic, 0.0)])
-    summary: dict[str, Any] = {
-        "n_pairs": n,
-        "size": w,
-        "mse": total / (n * 3 * h * w),
-        "contact_mm": contact_mm,
-        "rim_px": rim_px,
-        "axes": {},
-    }
-    axes = summary["axes"]
-    axes["region"] = _parts(list(REGIONS), region_err.numpy(), region_area.numpy(), "area_share")
-    bins = np.bincount(bands.flatten().numpy(), minlength=n_bands).astype(float)
-    axes["band"] = _parts(band_names, band_err.numpy(), bins, "bin_share")
-    axes["channel"] = _parts(list(CHANNELS), channel_err.numpy())
+    axes: dict[str, Any] = {}
+    axes["region"] = _parts(
+        list(REGIONS), acc["region_err"].numpy(), acc["region_area"].numpy(), "area_share"
+    )
+    bins = np.bincount(bands.flatten().numpy(), minlength=len(band_names)).astype(float)
+    axes["band"] = _parts(band_names, acc["band_err"].numpy(), bins, "bin_share")
+    axes["channel"] = _parts(list(CHANNELS), acc["channel_err"].numpy())
     axes["consistency"] = _parts(["same in every pair", "varies between pairs"], consistency_err)
-    group, depth_names = _depth_groups(max_depth.numpy())
-    pair_err = per_pair.numpy()
+    group, depth_names = _depth_groups(acc["max_depth"].numpy())
+    pair_err = acc["per_pair"].numpy()
     axes["depth"] = _parts(
         depth_names,
         np.bincount(group, weights=pair_err, minlength=len(depth_names)),
@@ -201,6 +195,32 @@ def analyse_where(
             np.bincount(lab_index, minlength=len(labels)).astype(float),
             "pair_share",
         )
+    return axes
+
+
+def analyse_where(
+    data: PairedData,
+    contact_mm: float = CONTACT_MM,
+    rim_px: int | None = None,
+    chunk: int = 256,
+) -> WhereResult:
+    """Split the squared error real - sim along region, band, channel, consistency, depth, label.
+
+    Shares in each axis sum to 1. ``summary["mse"]`` is the mean squared error per pixel
+    and channel (0..255 scale); ``maps`` holds the per-pixel error maps for the figures.
+    """
+    n, _, h, w = data.sim.shape
+    rim_px = rim_width_px(w) if rim_px is None else rim_px
+    acc = _accumulate(data, contact_mm, rim_px, chunk)
+    axes = _axes(data, acc)
+    summary: dict[str, Any] = {
+        "n_pairs": n,
+        "size": w,
+        "mse": float(acc["channel_err"].sum()) / (n * 3 * h * w),
+        "contact_mm": contact_mm,
+        "rim_px": rim_px,
+        "axes": axes,
+    }
     summary["dominant"] = sorted(
         ({"axis": a, **parts[0]} for a, parts in axes.items() if parts),
         key=lambda r: r["share"],
@@ -210,12 +230,12 @@ def analyse_where(
         bg = (data.background.float() - data.sim_background.float()).double()
         summary["background_mse"] = float(bg.square().mean())
     maps = {
-        "mean_abs": (sum_abs / n).float().numpy(),
-        "mean_signed": mean_signed.float().numpy(),
-        "contact_frequency": (contact_freq / n).float().numpy(),
-        "region_sq": (region_maps / n).float().numpy(),
-        "radial_power": (radial / (n * 3 * h * w)).float().numpy(),
-        "per_pair_mse": pair_err.astype(np.float32),
-        "max_depth": max_depth.float().numpy(),
+        "mean_abs": (acc["sum_abs"] / n).float().numpy(),
+        "mean_signed": (acc["sum_signed"] / n).float().numpy(),
+        "contact_frequency": (acc["contact_freq"] / n).float().numpy(),
+        "region_sq": (acc["region_maps"] / n).float().numpy(),
+        "radial_power": (acc["radial"] / (n * 3 * h * w)).float().numpy(),
+        "per_pair_mse": acc["per_pair"].numpy().astype(np.float32),
+        "max_depth": acc["max_depth"].float().numpy(),
     }
     return WhereResult(summary, maps)
