@@ -487,6 +487,18 @@ def main(args: list[str] | None = None) -> int:
     except TactileBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except ModuleNotFoundError as exc:
+        # a dependency missing from this Python (a clone run without installing it): the
+        # install line, not a traceback. One of our own modules missing is a bug: raised
+        if not exc.name or exc.name.split(".")[0] == "tactile_bench":
+            raise
+        print(
+            f"error: the package {exc.name!r} is not installed in this Python "
+            f"({sys.executable}); install tactile_bench first: "
+            "pip install torch==2.13.0 && pip install -e .",
+            file=sys.stderr,
+        )
+        return EXIT_USER_ERROR
     except OSError as exc:  # the machine's answer about a file: a full disk, a name too long
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)

@@ -99,3 +99,18 @@ def test_a_closed_stdout_is_not_an_error() -> None:
         timeout=120,
     )
     assert proc.returncode == 0 and b"Traceback" not in proc.stderr, proc.stderr.decode()
+
+
+def test_a_missing_dependency_is_the_install_line_not_a_traceback() -> None:
+    """``list effects`` in a Python without torch (a clone run before installing it)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.modules['torch'] = None\n"  # `import torch` now fails as if absent
+        "from tactile_bench.cli import main; sys.exit(main(['list', 'effects']))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=120)
+    err = proc.stderr.decode()
+    assert proc.returncode == 2 and "Traceback" not in err, err
+    assert "'torch' is not installed" in err and "pip install" in err
