@@ -43,6 +43,7 @@ from tactile_bench.diagnose.gapfit import (
     model_gap,
     rounding_gap,
 )
+from tactile_bench.diagnose.noise import FrameNoise, frame_noise
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.errors import TactileBenchError
 
@@ -89,7 +90,10 @@ class WhichResult:
     gap_metric: str
     gap_before: float = math.nan  # held-out gap of the plain sim
     gap_after: float = math.nan  # held-out gap with the selected set (jointly refitted)
-    gap_floor: float = 0.0  # part of gap_after the selected model leaves on its own draws
+    # part of gap_after no model can remove: the larger of the pairs' own noise against
+    # itself (``noise``) and what the selected model leaves on its own draws
+    gap_floor: float = 0.0
+    noise: dict[str, list[float]] = field(default_factory=dict)  # per source, grey levels
     selected_params: dict[str, dict[str, float]] = field(default_factory=dict)
     # the optical-response lookup (F x 3 x 6, see sensor.response_fit) fitted on the fit
     # split under the selected geometry, when optical_response is selected: the table
@@ -227,6 +231,8 @@ def explain_gap(
     target_fit, target_held = Target.of(data.real[fit_idx]), Target.of(data.real[held_idx])
     gap0 = model_gap(base_held, target_held, {}, seed)
     g0 = float(gap0.mean())
+    held = data.subset(held_idx)
+    noise = frame_noise(held.depth, held.sim, held.real, held.background, held.sim_background)
     background, background_note = _background_line(data, held_idx, target_held, gap0, seed)
     threshold = MIN_SHARE * g0
 
@@ -284,6 +290,7 @@ def explain_gap(
         names,
         (background, background_note),
         (base_fit, base_held),
+        noise,
         seed,
     )
 
@@ -297,12 +304,16 @@ def _result(
     names: list[str],
     background_line: tuple[EffectFit | None, str],
     bases: tuple[Base, Base],
+    noise: FrameNoise,
     seed: int,
 ) -> WhichResult:
-    """The "which" answer: what the selection leaves above the model's own randomness, as a
-    share of the first gap, and the fitted response table when the response is selected."""
+    """The "which" answer: what the selection leaves above the floor no model can remove
+    (the pairs' noise, or the model's own randomness if larger), as a share of the first
+    gap, and the fitted response table when the response is selected."""
     (background, background_note), (base_fit, base_held) = background_line, bases
-    floor = min(max(_own_randomness(base_held, selected, seed), 0.0), float(current.mean()))
+    clean = render(base_held, selected, stochastic=False)
+    floor = max(_own_randomness(base_held, selected, seed), float(noise.floor(clean).mean()))
+    floor = min(max(floor, 0.0), float(current.mean()))
     unexplained = (float(current.mean()) - floor) / (g0 - floor) if g0 > floor else 0.0
     table = None
     if "optical_response" in selected:
@@ -316,6 +327,7 @@ def _result(
         gap_before=g0,
         gap_after=float(current.mean()),
         gap_floor=floor,
+        noise=noise.to_dict(),
         selected_params={k: dict(v) for k, v in selected.items()},
         response_table=table,
         candidates=names,
