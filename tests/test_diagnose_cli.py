@@ -295,3 +295,20 @@ def test_first_lines_show_the_background_line_sim_optics_and_confusable_sets() -
     )
     composited = {**report, "background": None, "background_note": "the sim was composited"}
     assert _summary_lines(composited)[1] == "background: the sim was composited"
+
+
+def test_the_summary_says_unexplained_is_counted_above_the_pairs_noise() -> None:
+    from tactile_bench.diagnose.commands import _summary_lines
+
+    report = {
+        "n_pairs": 8,
+        "split": {"n_fit": 4, "n_held": 4},
+        "timing_s": {"total": 1.0},
+        "where": {"mse": 3.0, "dominant": []},
+        "ranking": [],
+        "unexplained": 0.0,
+        "residual_flagged": False,
+        "which": {"noise": {"sim": [0.0, 0.0, 0.0], "real": [2.1, 2.4, 2.2]}},
+    }
+    text = "\n".join(_summary_lines(report))
+    assert "counted above the pairs' own noise (std, grey levels: sim 0, real 2.4)" in text

@@ -80,6 +80,10 @@ def _summary_lines(report: dict[str, Any]) -> list[str]:
     if not report["ranking"]:
         lines.append("  (no candidate effect shrinks the gap)")
     lines.append(f"unexplained share of the held-out gap: {report['unexplained']:.3f}")
+    noise = (report.get("which") or {}).get("noise") or {}
+    if noise:
+        sides = ", ".join(f"{k.replace('_', ' ')} {max(v):.2g}" for k, v in noise.items())
+        lines.append(f"  counted above the pairs' own noise (std, grey levels: {sides})")
     if report.get("residual_flagged"):
         lines.append("  note: a large residual remains that no candidate explains")
     far = report.get("how_far") or {}
