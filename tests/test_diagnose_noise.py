@@ -73,3 +73,20 @@ def test_noise_against_noise_is_not_called_unexplained(bank) -> None:
     assert result.gap_floor > 0.5 * result.gap_before
     assert not result.residual_flagged, result.unexplained
     assert all(abs(s - 4.0) < 0.6 for s in result.noise["real"] + result.noise["sim"])
+
+
+def test_noise_is_refitted_after_a_blur_smooths_the_sims_own(bank) -> None:
+    """A blur under noise in sim and real: the blur candidate smooths the sim's noise too,
+    so the noise, which alone removed nothing, must be refitted once the blur is in."""
+    data = planted_pairs(bank, {"defocus_blur": {"sigma_mm": 0.5}}, 24, 3, SIZE)
+    gen = torch.Generator().manual_seed(5)
+    data.sim = data.sim + 6.0 * torch.randn(data.sim.shape, generator=gen)
+    data.real = data.real + 6.0 * torch.randn(data.real.shape, generator=gen)
+    idx = torch.arange(24)
+    result = explain_gap(
+        data, idx[::2], idx[1::2], candidates=["defocus_blur", "camera_noise"], progress=False
+    )
+    alone = next(r for r in result.singles if r.effect == "camera_noise")
+    assert alone.shrink <= 0  # the sim is as noisy as the real frames
+    assert [r.effect for r in result.ranking] == ["defocus_blur", "camera_noise"]
+    assert not result.residual_flagged, result.unexplained
