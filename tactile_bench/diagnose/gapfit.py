@@ -45,6 +45,10 @@ DIFF_SWEEP_LEVELS = (0.1, 0.5, 0.9)  # coarser for parameters Adam refines after
 MAX_WHOLE_VALUES = 100  # integer parameters with at most this many values: tried one by one
 MAX_WHOLE_POINTS = 400  # combinations of whole values tried jointly (else one at a time)
 MAX_GRID_PARAMS = 2  # up to this many gradient-free parameters: a full grid, not a sweep
+# integer values (a codec's quality at both frame sizes: 200 points) are screened on this
+# many pairs, and the best WHOLE_SHORTLIST of them scored on the Adam pairs
+WHOLE_PAIRS = 16
+WHOLE_SHORTLIST = 5
 
 
 def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -221,8 +225,9 @@ def fit_candidate(
     whole = [s for s in cand.searched if s.integer and s.high - s.low <= MAX_WHOLE_VALUES]
     other = [s.name for s in cand.searched if not s.differentiable and s not in whole]
     with torch.no_grad():
+        whole_idx = order[: min(WHOLE_PAIRS, budget.sweep_pairs)]
         _whole_values(
-            u, whole, lambda v: float(loss(v, sweep_idx)), lambda v: float(loss(v, adam_idx))
+            u, whole, lambda v: float(loss(v, whole_idx)), lambda v: float(loss(v, adam_idx))
         )
         if len(other) <= MAX_GRID_PARAMS:
             _grid(u, other, lambda v: float(loss(v, sweep_idx)))
@@ -277,9 +282,10 @@ def _whole_values(
     loss_on_more: Callable[[dict[str, object]], float],
 ) -> None:
     """Integer parameters (``whole``, searched specs) set to their best combination: every
-    combination scored by ``quick_loss`` (the sweep's pairs), the best three by
-    ``loss_on_more``. Jointly when there are at most ``MAX_WHOLE_POINTS`` (a codec's quality
-    that fits one frame size misfits the other), else one parameter at a time."""
+    combination scored by ``quick_loss`` (``WHOLE_PAIRS`` pairs), the best
+    ``WHOLE_SHORTLIST`` by ``loss_on_more``. Jointly when there are at most
+    ``MAX_WHOLE_POINTS`` (a codec's quality that fits one frame size misfits the other),
+    else one parameter at a time."""
     grids = [[s.to_unit(v) for v in range(math.ceil(s.low), math.floor(s.high) + 1)] for s in whole]
     joint = math.prod(len(g) for g in grids) <= MAX_WHOLE_POINTS
     for names, values in (
@@ -291,7 +297,7 @@ def _whole_values(
         scores = sorted(
             ((quick_loss({**u, **pt}), i) for i, pt in enumerate(points)), key=lambda t: t[0]
         )
-        best = min((loss_on_more({**u, **points[i]}), i) for _, i in scores[:3])
+        best = min((loss_on_more({**u, **points[i]}), i) for _, i in scores[:WHOLE_SHORTLIST])
         u.update(points[best[1]])
 
 
