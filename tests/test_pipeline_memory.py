@@ -3,15 +3,18 @@
 The allocation runs in a fresh interpreter, whose peak is only its imports. In the test
 session the peak already holds torch and every earlier test (1.26 GiB), and there CI once saw
 a block lifted 200 MiB above it leave the mark unmoved (before == during); not reproduced on
-our machine and not isolated (reclaim of the mapped libraries' pages is one candidate).
+our machine and not isolated (reclaim of the mapped libraries' pages is one candidate, so
+the stage tests' ``allocate_above_peak`` keeps adding blocks until the mark moves).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from tactile_bench.pipeline.memory import peak_rss_mib
@@ -30,6 +33,29 @@ during = peak_rss_mib()
 del block
 print(json.dumps([before, during, peak_rss_mib()]))
 """
+
+
+def rss_mib() -> float:
+    """The resident set size now (not the peak), from /proc/self/statm."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def allocate_above_peak(extra_mib: float, chunk_mib: int = 16) -> list[np.ndarray]:
+    """Touched blocks that lift this process's peak RSS by ``extra_mib`` (for stage tests).
+
+    Blocks are added until the mark has moved, at most four times ``extra_mib`` beyond the
+    gap between the resident set and the peak: while they are touched the kernel may drop
+    pages of the mapped libraries, so the resident set can need more than that gap.
+    """
+    if extra_mib <= 0:
+        return [np.ones(1)]
+    target = peak_rss_mib() + extra_mib
+    limit = max(0.0, peak_rss_mib() - rss_mib()) + 4 * extra_mib
+    blocks: list[np.ndarray] = []
+    while peak_rss_mib() < target and chunk_mib * len(blocks) < limit:
+        blocks.append(np.ones(chunk_mib * 2**20 // 8))
+    return blocks
 
 
 def vm_hwm_mib() -> float:

@@ -93,8 +93,8 @@ def test_run_json_records_stages(recipe_path: Path, tmp_path: Path) -> None:
 
 
 def _allocate(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
-    block = allocate_above_peak(ctx.config.value)
-    (ctx.directory / "out.txt").write_text(str(int(block[0])))
+    blocks = allocate_above_peak(ctx.config.value)
+    (ctx.directory / "out.txt").write_text(str(int(blocks[0][0])))
     return {"out": "out.txt"}, {}
 
 
