@@ -90,3 +90,12 @@ def test_noise_is_refitted_after_a_blur_smooths_the_sims_own(bank) -> None:
     assert alone.shrink <= 0  # the sim is as noisy as the real frames
     assert [r.effect for r in result.ranking] == ["defocus_blur", "camera_noise"]
     assert not result.residual_flagged, result.unexplained
+
+
+def test_8_bit_frames_measure_the_same_noise_as_float_ones() -> None:
+    depth, light = _scene()
+    real = _noisy(light, 30, 3.0, 2).round().clamp(0, 255)
+    as_float = frame_noise(depth, real, real, light.round(), None)
+    as_bytes = frame_noise(depth, real.byte(), real.byte(), light.round().byte(), None)
+    torch.testing.assert_close(as_bytes.real, as_float.real)
+    torch.testing.assert_close(as_bytes.measured_background, as_float.measured_background)

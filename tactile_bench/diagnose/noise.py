@@ -53,7 +53,8 @@ def frame_variance(frames: torch.Tensor, free: torch.Tensor) -> torch.Tensor:
     usable = both.flatten(1).sum(1) >= MIN_PIXELS
     if not bool(usable.any()):
         return torch.zeros(frames.shape[1])
-    diff = (frames[1:] - frames[:-1])[usable].float()
+    frames = frames.float()  # 8-bit frames would wrap around in the difference
+    diff = (frames[1:] - frames[:-1])[usable]
     mask = both[usable].expand_as(diff)
     values = diff.transpose(0, 1)[mask.transpose(0, 1)].reshape(diff.shape[1], -1)
     return _mean_square(values) / 2
