@@ -1,14 +1,14 @@
 """The pairs' frame-to-frame noise: the part of the gap no candidate simulator can remove.
 
-Away from its contact, a frame differs from the next frame of the same sensor only by what
-varies from frame to frame (read and shot noise, flicker): the deterministic light and the
-camera's fixed effects cancel in the difference. Its mean square over those pixels is twice
-the frame's noise variance, for the real frames and for the sim's alike (a noisy renderer,
-as TACTO's with its noise on). A no-contact frame that is a single capture carries a frozen
-draw of the same noise into every candidate built on it; how much, is bounded by the data
-(see ``FrameNoise``). A simulator that reproduced the real sensor exactly would still leave
-the gap these noises make against each other; the diagnosis subtracts it as a floor
-(``which._result``) instead of calling it unexplained.
+Away from its contact, a frame differs from the per-pixel median of many frames of the same
+sensor only by what varies from frame to frame (read and shot noise, flicker): the
+deterministic light and the camera's fixed effects cancel (``metrics.estimate_pixel_noise``,
+with the pixels near any contact left out). That is measured for the real frames and for
+the sim's alike (a noisy renderer, as TACTO's with its noise on). A no-contact frame that is
+a single capture carries a frozen draw of the same noise into every candidate built on it;
+how much, is bounded by the data (see ``frozen_variance``). A simulator that reproduced the
+real sensor exactly would still leave the gap these noises make against each other; the
+diagnosis subtracts it as a floor (``which._result``) instead of calling it unexplained.
 
 Assumptions, stated because the floor rests on them: the noise is additive, independent from
 frame to frame and from pixel to pixel (the floor is drawn as white Gaussian noise of the
@@ -17,18 +17,20 @@ measured variance), and the same near the contact as away from it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
 from tactile_bench.diagnose.gapfit import Target, pair_gap
+from tactile_bench.metrics.noise import MIN_FRAMES, clipped_std, estimate_pixel_noise
 
 #: pixels within this share of the image size of any contact are left out: a gel's spread,
 #: a misregistered depth or a shadow reach past the depth's own contact
 MARGIN_SHARE = 1 / 8
-MIN_PIXELS = 64  # a pair of frames with fewer contact-free pixels in common is skipped
-TRIM = 4.0  # differences beyond this many robust standard deviations are not noise
+MIN_PIXELS = 64  # fewer contact-free pixels than this measure no frozen draw
+MOSTLY_FREE = 0.75  # share of frames without a contact near a pixel, for its median
 
 
 def contact_free(depth: torch.Tensor) -> torch.Tensor:
@@ -38,42 +40,30 @@ def contact_free(depth: torch.Tensor) -> torch.Tensor:
     return near == 0
 
 
-def _mean_square(diff: torch.Tensor) -> torch.Tensor:
-    """(3,) trimmed mean square of per-channel differences (C, M): a sparse change that is
-    not noise (a drifting speck, a reflection) must not pass for it."""
-    scale = 1.4826 * diff.abs().median(dim=1).values  # the MAD of a zero-mean Gaussian
-    keep = diff.abs() <= (TRIM * scale).clamp(min=1.0)[:, None]
-    return (diff.square() * keep).sum(1) / keep.sum(1).clamp(min=1)
-
-
 def frame_variance(frames: torch.Tensor, free: torch.Tensor) -> torch.Tensor:
-    """(3,) noise variance per channel of ``frames`` (N, 3, S, S), from consecutive frames'
-    differences where both are contact-free (``free``, (N, 1, S, S)); 0 with too few."""
-    both = free[:-1] & free[1:]
-    usable = both.flatten(1).sum(1) >= MIN_PIXELS
-    if not bool(usable.any()):
-        return torch.zeros(frames.shape[1])
-    frames = frames.float()  # 8-bit frames would wrap around in the difference
-    diff = (frames[1:] - frames[:-1])[usable]
-    mask = both[usable].expand_as(diff)
-    values = diff.transpose(0, 1)[mask.transpose(0, 1)].reshape(diff.shape[1], -1)
-    return _mean_square(values) / 2
+    """(3,) noise variance per channel of ``frames`` (N, 3, S, S), measured frame to frame
+    where no contact is near (``free``, (N, 1, S, S)); 0 with too few frames or pixels."""
+    sigma = estimate_pixel_noise(frames, free)
+    return torch.zeros(frames.shape[1]) if sigma is None else sigma.square()
 
 
 def frozen_variance(
     frame: torch.Tensor, frames: torch.Tensor, free: torch.Tensor, variance: torch.Tensor
 ) -> torch.Tensor:
     """(3,) the noise a no-contact ``frame`` (3, S, S) carries frozen in it, next to
-    ``frames`` of the same sensor with per-frame noise ``variance``: the mean square of
-    their difference away from contacts less the frames' own share, at most ``variance``
-    (one capture's worth). A frame of another unit or an average of many comes out lower,
-    never higher: a difference that is not noise cannot raise the floor past one capture."""
-    diff = (frames.float() - frame.float()[None]).transpose(0, 1)
-    mask = free.expand(-1, frames.shape[1], -1, -1).transpose(0, 1)
-    if int(mask.sum()) < MIN_PIXELS:
+    ``frames`` of the same sensor with per-frame noise ``variance``.
+
+    Its deviation from their per-pixel median, where most frames (``MOSTLY_FREE``) have no
+    contact near, less the median's own noise (pi/2 variance / N for a median of N draws),
+    at most ``variance`` (one capture's worth): a frame of another unit or an average of
+    many comes out lower, never higher than one capture.
+    """
+    mostly = free.float().mean(dim=0)[0] >= MOSTLY_FREE  # (S, S)
+    if len(frames) < MIN_FRAMES or int(mostly.sum()) < MIN_PIXELS:
         return torch.zeros_like(variance)
-    values = diff[mask].reshape(diff.shape[0], -1)
-    return torch.minimum((_mean_square(values) - variance).clamp(min=0.0), variance)
+    deviation = frame.float() - frames.float().median(dim=0).values
+    own = clipped_std(deviation[:, mostly]).square() - math.pi / 2 * variance / len(frames)
+    return torch.minimum(own.clamp(min=0.0), variance)
 
 
 @dataclass
