@@ -7,7 +7,7 @@ import torch
 
 from tactile_bench.diagnose.noise import contact_free, frame_noise
 from tactile_bench.diagnose.validate import planted_pairs
-from tactile_bench.diagnose.which import explain_gap
+from tactile_bench.diagnose.which import WhichResult, explain_gap
 from tactile_bench.geometry.braille import BrailleSpec
 from tactile_bench.sensor.heightfield import build_bank
 
@@ -60,16 +60,20 @@ def bank():
     return build_bank(("A", "L", "#"), BrailleSpec())
 
 
+def _explain_noisy(bank, planted: dict, sigma: float, candidates: list[str]) -> WhichResult:
+    """The diagnosis of 24 planted pairs with independent noise of ``sigma`` added to the
+    sim and the real frames alike (every other pair held out)."""
+    data = planted_pairs(bank, planted, 24, 3, SIZE)
+    gen = torch.Generator().manual_seed(5)
+    data.sim = data.sim + sigma * torch.randn(data.sim.shape, generator=gen)
+    data.real = data.real + sigma * torch.randn(data.real.shape, generator=gen)
+    idx = torch.arange(24)
+    return explain_gap(data, idx[::2], idx[1::2], candidates=candidates, progress=False)
+
+
 def test_noise_against_noise_is_not_called_unexplained(bank) -> None:
     """Nothing planted, both sides noisy (independent draws): what is left is the floor."""
-    data = planted_pairs(bank, {}, 24, 3, SIZE)
-    gen = torch.Generator().manual_seed(5)
-    data.sim = data.sim + 4.0 * torch.randn(data.sim.shape, generator=gen)
-    data.real = data.real + 4.0 * torch.randn(data.real.shape, generator=gen)
-    idx = torch.arange(24)
-    result = explain_gap(
-        data, idx[::2], idx[1::2], candidates=["defocus_blur", "vignetting"], progress=False
-    )
+    result = _explain_noisy(bank, {}, 4.0, ["defocus_blur", "vignetting"])
     assert result.gap_floor > 0.5 * result.gap_before
     assert not result.residual_flagged, result.unexplained
     assert all(abs(s - 4.0) < 0.6 for s in result.noise["real"] + result.noise["sim"])
@@ -78,14 +82,8 @@ def test_noise_against_noise_is_not_called_unexplained(bank) -> None:
 def test_noise_is_refitted_after_a_blur_smooths_the_sims_own(bank) -> None:
     """A blur under noise in sim and real: the blur candidate smooths the sim's noise too,
     so the noise, which alone removed nothing, must be refitted once the blur is in."""
-    data = planted_pairs(bank, {"defocus_blur": {"sigma_mm": 0.5}}, 24, 3, SIZE)
-    gen = torch.Generator().manual_seed(5)
-    data.sim = data.sim + 6.0 * torch.randn(data.sim.shape, generator=gen)
-    data.real = data.real + 6.0 * torch.randn(data.real.shape, generator=gen)
-    idx = torch.arange(24)
-    result = explain_gap(
-        data, idx[::2], idx[1::2], candidates=["defocus_blur", "camera_noise"], progress=False
-    )
+    planted = {"defocus_blur": {"sigma_mm": 0.5}}
+    result = _explain_noisy(bank, planted, 6.0, ["defocus_blur", "camera_noise"])
     alone = next(r for r in result.singles if r.effect == "camera_noise")
     assert alone.shrink <= 0  # the sim is as noisy as the real frames
     assert [r.effect for r in result.ranking] == ["defocus_blur", "camera_noise"]
