@@ -78,17 +78,20 @@ def c_wrong_size(tmp: Path) -> list[str]:
     return ["check", str(root)]
 
 
+# The released layouts' frames are read as cv2.imread reads them (grey to three channels,
+# alpha dropped), so a grey or RGBA frame there is data, not an error; the diagnosis's own
+# paired layout is documented as 8-bit RGB and refuses them.
 def c_rgba(tmp: Path) -> list[str]:
-    root = _td(tmp)
-    rgba = np.dstack([frame(4), np.full((FRAME_HW[1], FRAME_HW[0]), 255, np.uint8)])
-    png(root / "real/color/a/a_1.png", rgba)
-    return ["check", str(root)]
+    root = paired_layout(tmp / "paired")
+    rgba = np.dstack([frame(4, (32, 32)), np.full((32, 32), 255, np.uint8)])
+    png(root / "real" / "c1.png", rgba)
+    return ["diagnose", str(root), "--out", str(tmp / "out"), "--no-progress"]
 
 
 def c_grey_frame(tmp: Path) -> list[str]:
-    root = _td(tmp)
-    png(root / "real_fine_tuning/color/a/a_1.png", frame(5)[..., 0])
-    return ["check", str(root)]
+    root = paired_layout(tmp / "paired")
+    png(root / "sim" / "c1.png", frame(5, (32, 32))[..., 0])
+    return ["diagnose", str(root), "--out", str(tmp / "out"), "--no-progress"]
 
 
 def c_truncated_mask(tmp: Path) -> list[str]:
@@ -304,8 +307,8 @@ CASES: list[Case] = [
     Case("truncated PNG", c_truncated_png, "b_1.png"),
     Case("truncated JPEG frame (YCB-Slide)", c_truncated_jpeg, "frame_0000002.jpg", slow=True),
     Case("wrong image size", c_wrong_size, "b_0.png"),
-    Case("wrong channel count (RGBA frame)", c_rgba, "a_1.png"),
-    Case("grey frame where RGB expected", c_grey_frame, "a_1.png"),
+    Case("paired layout: wrong channel count (RGBA frame)", c_rgba, "c1.png"),
+    Case("paired layout: grey frame where RGB expected", c_grey_frame, "c1.png"),
     Case("truncated depth mask", c_truncated_mask, "b_0.png"),
     Case("fine-tuning frame off its background's size", c_frame_off_background, "a_0.png"),
     Case("empty folder", c_empty_folder, "real_fine_tuning"),

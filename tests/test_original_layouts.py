@@ -19,7 +19,7 @@ from PIL import Image
 
 from tactile_bench.cli import main
 from tactile_bench.data.braille import BrailleSet
-from tactile_bench.data.images import read_mask
+from tactile_bench.data.images import read_image, read_mask
 from tactile_bench.data.tactile_diffusion import (
     braille_root,
     load_braille_pairs,
@@ -158,6 +158,46 @@ def test_masks_are_read_as_the_original_reads_them(release: Path, tmp_path: Path
     Image.fromarray(tinted).save(tmp_path / "tinted.png")
     assert read_mask(tmp_path / "tinted.png")[0, 0] == 30  # round(0.299 * 100)
     assert read_mask(tmp_path / "tinted.png", weights_bgr_as_rgb=False)[0, 0] == 11
+
+
+def test_frames_not_stored_as_rgb_are_read_as_cv2_imread_reads_them(tmp_path: Path) -> None:
+    # cv2.imread(path) (IMREAD_COLOR), the original loaders' reader: grey to all three
+    # channels, alpha dropped without compositing, 16-bit grey to its high byte
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (6, 8, 3), dtype=np.uint8)
+    grey = rng.integers(0, 256, (6, 8), dtype=np.uint8)
+    alpha = rng.integers(0, 256, (6, 8, 1), dtype=np.uint8)
+    Image.fromarray(grey).save(tmp_path / "grey.png")
+    Image.fromarray(np.concatenate([rgb, alpha], axis=2)).save(tmp_path / "rgba.png")
+    Image.fromarray(grey.astype(np.uint16) * 257 + 3).save(tmp_path / "grey16.png")
+    Image.fromarray(rgb).convert("P", palette=Image.Palette.ADAPTIVE).save(tmp_path / "p.png")
+    as_hwc = {
+        n: read_image(tmp_path / f"{n}.png").permute(1, 2, 0).numpy()
+        for n in ("grey", "rgba", "grey16", "p")
+    }
+    assert np.array_equal(as_hwc["grey"], np.repeat(grey[..., None], 3, axis=2))
+    assert np.array_equal(as_hwc["rgba"], rgb)
+    assert np.array_equal(as_hwc["grey16"], np.repeat(grey[..., None], 3, axis=2))
+    assert as_hwc["p"].shape == (6, 8, 3)
+
+
+def test_check_reads_a_release_with_grey_and_rgba_frames_and_notes_each_mode_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    datasets = tmp_path / "datasets"
+    write_braille_release(datasets)
+    color = datasets / "braille" / "real_fine_tuning" / "color"
+    for letter, mode in (("a", "L"), ("b", "L"), ("c", "RGBA")):
+        for name in ("0.jpg", "1.jpg"):
+            frame = Image.open(color / letter / name).convert(mode)
+            frame.save(color / letter / name.replace(".jpg", ".png"))
+            (color / letter / name).unlink()
+            mask = datasets / "braille" / "real_fine_tuning" / "mask" / letter / name
+            mask.rename(mask.with_suffix(".png"))
+    assert main(["check", str(datasets)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("mode L)") == 1 and err.count("mode RGBA)") == 1, err
+    assert "cv2.imread" in err
 
 
 def test_source_is_the_braille_folder_or_its_parent(release: Path, tmp_path: Path) -> None:

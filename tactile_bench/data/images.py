@@ -2,14 +2,20 @@
 
 Real folders are messy: a frame cut short by a full disk, a screenshot saved as RGBA, a
 grey-scale export, a frame of another camera resolution, a stray ``.DS_Store``. The readers
-here decode the whole file (so a truncated one fails now, not inside a training), check the
-channels (tactile frames are RGB; the Tactile-Diffusion depth masks are 8-bit grey) and, with
-a :class:`SameSize`, that every frame of a dataset has one size: resizing a frame of another
-size would silently mix two sensors' geometries.
+here decode the whole file (so a truncated one fails now, not inside a training) and, with a
+:class:`SameSize`, check that every frame of a dataset has one size: resizing a frame of
+another size would silently mix two sensors' geometries.
+
+The released datasets' own loaders read every image with ``cv2.imread(path)``, which gives
+8-bit, 3-channel colour whatever the file holds: a grey file's level goes to all three
+channels, an alpha channel is dropped, 16 bits become 8 (>> 8). The readers of those layouts
+do the same (:func:`read_image`, :func:`read_mask`), so a folder the original code trains on
+is read here too; a frame that was not stored as RGB is named once in a warning.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +27,13 @@ from tactile_bench.guard.images import open_header
 
 #: colour modes that hold a 3-channel RGB frame (a palette PNG expands to RGB)
 RGB_MODES = ("RGB", "P")
+
+#: Pillow's modes of 16- and 32-bit integer grey; ``cv2.imread`` keeps their high byte
+_WIDE_GREY = ("I;16", "I;16B", "I;16L", "I")
+
+log = logging.getLogger("tactile_bench")
+#: (mode, dataset folder) already named in a warning, like the ``warnings`` module's registry
+_noted: set[tuple[str, Path]] = set()
 
 
 def is_hidden(path: Path) -> bool:
@@ -74,14 +87,49 @@ def _channels(im: Image.Image) -> str:
     return f"{n} channel{'s' if n != 1 else ''} (mode {im.mode})"
 
 
+def as_imread_colour(im: Image.Image, path: Path) -> Image.Image:
+    """The 8-bit RGB image ``cv2.imread(path)`` (``IMREAD_COLOR``) would give for ``im``.
+
+    Grey levels go to R, G and B alike, alpha is dropped (not composited), 16-bit grey keeps
+    its high byte. Only what ``imread`` cannot read as colour either is an error.
+    """
+    if im.mode in _WIDE_GREY:
+        grey = np.clip(np.asarray(im, dtype=np.int64) >> 8, 0, 255).astype(np.uint8)
+        return Image.fromarray(grey, "L").convert("RGB")
+    if im.mode in ("LA", "La", "PA"):
+        im = im.convert("RGBA") if im.mode == "PA" else im.convert("L")
+    try:
+        return im.convert("RGB")
+    except (ValueError, OSError) as exc:
+        raise TactileBenchError(
+            f"{path}: {_channels(im)} cannot be read as colour ({exc})"
+        ) from None
+
+
+def _note_mode(path: Path, im: Image.Image) -> None:
+    """Say that a frame was not RGB: usually an export, sometimes a wrong folder, which the
+    user should hear of although the original reads it silently. Once per mode and dataset
+    folder (``<folder>/<label or frames>/<file>``), not once per frame."""
+    key = (im.mode, path.parent.parent)
+    if im.mode in RGB_MODES or key in _noted:
+        return
+    _noted.add(key)
+    log.warning(
+        "%s: %s; read as the original loaders read it (cv2.imread: 8-bit, 3 channels, alpha "
+        "dropped); other frames of this mode are read the same way without a note",
+        path,
+        _channels(im),
+    )
+
+
 def read_image(path: Path, size: int | None = None, same: SameSize | None = None) -> torch.Tensor:
-    """(3, S, S) uint8 RGB of a colour frame, area-resized to ``size`` (cv2 INTER_AREA)."""
+    """(3, S, S) uint8 RGB of a colour frame as ``cv2.imread`` reads it, area-resized to
+    ``size`` (cv2 INTER_AREA)."""
     im = open_image(path)
-    if im.mode not in RGB_MODES:
-        raise TactileBenchError(f"{path}: {_channels(im)}; a tactile frame is RGB (3 channels)")
     if same is not None:
         same.check(Path(path), im.size)
-    im = im.convert("RGB")
+    _note_mode(Path(path), im)
+    im = as_imread_colour(im, Path(path))
     if size is not None:
         im = im.resize((size, size), Image.Resampling.BOX)
     return torch.from_numpy(np.asarray(im, dtype=np.uint8).copy()).permute(2, 0, 1)
@@ -132,17 +180,10 @@ def read_mask(path: Path, size: int | None = None, weights_bgr_as_rgb: bool = Tr
     (False: ``dataio_ycb.py``'s correct BGR2GRAY).
     """
     im = open_image(path)
-    if im.mode in ("I;16", "I;16B", "I;16L", "I"):
-        grey = np.clip(np.asarray(im, dtype=np.int64) >> 8, 0, 255).astype(np.float64)
-    elif im.mode == "L":
-        grey = np.asarray(im, dtype=np.float64)
+    if im.mode in _WIDE_GREY + ("L",):
+        grey = np.asarray(as_imread_colour(im, Path(path)), dtype=np.float64)[..., 0]
     else:
-        try:
-            rgb = np.asarray(im.convert("RGB"), dtype=np.float64)
-        except (ValueError, OSError) as exc:
-            raise TactileBenchError(
-                f"{path}: {_channels(im)} cannot be read as a mask ({exc})"
-            ) from None
+        rgb = np.asarray(as_imread_colour(im, Path(path)), dtype=np.float64)
         weights = _RGB2GRAY[::-1] if weights_bgr_as_rgb else _RGB2GRAY
         grey = np.floor(rgb @ weights + 0.5)  # cv2 rounds to the nearest level
     im = Image.fromarray(np.clip(grey, 0, 255).astype(np.uint8), "L")
