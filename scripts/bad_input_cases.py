@@ -16,7 +16,6 @@ import numpy as np
 import torch
 from bad_input_fixtures import (
     BRAILLE_STAGE,
-    FRAME_HW,
     braille_layout,
     cgan_from,
     corpus,
