@@ -97,3 +97,19 @@ def test_8_bit_frames_measure_the_same_noise_as_float_ones() -> None:
     as_bytes = frame_noise(depth, real.byte(), real.byte(), light.round().byte(), None)
     torch.testing.assert_close(as_bytes.real, as_float.real)
     torch.testing.assert_close(as_bytes.measured_background, as_float.measured_background)
+
+
+def test_a_response_that_only_smooths_the_sims_noise_is_set_aside(bank) -> None:
+    """Nothing planted, both sides noisy: re-rendering the contact from a fitted response
+    replaces the sim's noisy colour change with a smooth one and lowers the gap, but with
+    the sim's noise put back it removes nothing, so it is not selected."""
+    result = _explain_noisy(bank, {}, 4.0, ["optical_response", "defocus_blur"])
+    assert [r.effect for r in result.ranking] == []
+    assert "optical_response" in result.set_aside_as_denoising
+
+
+def test_a_real_response_under_noise_is_still_selected(bank) -> None:
+    planted = {"optical_response": {"blend": 1.0}}
+    result = _explain_noisy(bank, planted, 4.0, ["optical_response", "defocus_blur"])
+    assert [r.effect for r in result.ranking][:1] == ["optical_response"]
+    assert result.set_aside_as_denoising == []

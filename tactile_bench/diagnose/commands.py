@@ -79,6 +79,12 @@ def _summary_lines(report: dict[str, Any]) -> list[str]:
             )
     if not report["ranking"]:
         lines.append("  (no candidate effect shrinks the gap)")
+    aside = (report.get("which") or {}).get("set_aside_as_denoising") or []
+    if aside:
+        lines.append(
+            f"  set aside: {', '.join(aside)} (removes only the sim's own noise, which the "
+            "real frames have less of)"
+        )
     lines.append(f"unexplained share of the held-out gap: {report['unexplained']:.3f}")
     noise = (report.get("which") or {}).get("noise") or {}
     if noise:

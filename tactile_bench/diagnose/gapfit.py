@@ -135,20 +135,30 @@ def is_stochastic(effects: Mapping[str, Mapping[str, object]]) -> bool:
     return any(CANDIDATES[n].stochastic and not CANDIDATES[n].latent_grid for n in effects)
 
 
+#: a change made to every rendered draw before it is scored: (images, base, draw) -> images
+PostDraw = Callable[[torch.Tensor, Base, int], torch.Tensor]
+
+
 def evaluate(
-    base: Base, target: Target, effects: Mapping[str, Mapping[str, object]], seed: int
+    base: Base,
+    target: Target,
+    effects: Mapping[str, Mapping[str, object]],
+    seed: int,
+    post: PostDraw | None = None,
 ) -> torch.Tensor:
     """Per-pair gap (N,) of ``effects`` on ``base``: two seeded draws when stochastic, and
     for an effect with a per-pair latent the best value of its grid, pair by pair."""
     for name in effects:
         grid = CANDIDATES[name].latent_grid
         if grid and name not in base.latent:
-            gaps = [evaluate(base.with_latent(name, v), target, effects, seed) for v in grid]
+            gaps = [evaluate(base.with_latent(name, v), target, effects, seed, post) for v in grid]
             return torch.stack(gaps).min(0).values
     draws = 2 if is_stochastic(effects) else 1
     images = [
         render(base, effects, torch.Generator().manual_seed(seed + 7919 * k)) for k in range(draws)
     ]
+    if post is not None:
+        images = [post(image, base, k) for k, image in enumerate(images)]
     return pair_gap(images, target)
 
 
@@ -158,13 +168,15 @@ def model_gap(
     effects: Mapping[str, Mapping[str, object]],
     seed: int = 0,
     chunk: int = 256,
+    post: PostDraw | None = None,
 ) -> torch.Tensor:
-    """Per-pair gap (N,) of the candidate simulator with ``effects`` against ``target``."""
+    """Per-pair gap (N,) of the candidate simulator with ``effects`` against ``target``
+    (``post``: applied to each rendered draw before scoring)."""
     out = []
     with torch.no_grad():
         for i in range(0, len(base), chunk):
             idx = torch.arange(i, min(i + chunk, len(base)))
-            out.append(evaluate(base.subset(idx), target.subset(idx), effects, seed + i))
+            out.append(evaluate(base.subset(idx), target.subset(idx), effects, seed + i, post))
     return torch.cat(out) if out else torch.zeros(0)
 
 

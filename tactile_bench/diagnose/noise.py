@@ -23,7 +23,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.diagnose.gapfit import Target, pair_gap
+from tactile_bench.diagnose.candidates import Base
+from tactile_bench.diagnose.gapfit import PostDraw, Target, pair_gap
 from tactile_bench.metrics.noise import MIN_FRAMES, clipped_std, estimate_pixel_noise
 
 #: pixels within this share of the image size of any contact are left out: a gel's spread,
@@ -90,6 +91,26 @@ class FrameNoise:
         model = clean + draw[0] * self.candidate.sqrt()[:, None, None]
         real = clean + draw[1] * self.real.sqrt()[:, None, None]
         return pair_gap([model], Target.of(real))
+
+    def topped_up(self, seed: int = 0) -> PostDraw:
+        """A draw's frame-to-frame noise brought back up to the sim's measured level.
+
+        An effect that re-renders or smooths the contact (a fitted response, a blur) also
+        removes the sim's own noise, and against a less noisy camera that lowers the gap
+        whatever the effect is. Scored with the noise put back (white, Gaussian, per channel,
+        the same draw for every candidate), a candidate keeps only what it changes in the
+        image formation. A draw too small to measure is left as it is.
+        """
+
+        def post(images: torch.Tensor, base: Base, draw: int) -> torch.Tensor:
+            have = estimate_pixel_noise(images, contact_free(base.depth))
+            if have is None:
+                return images
+            extra = (self.sim - have.square()).clamp(min=0.0).sqrt()
+            gen = torch.Generator().manual_seed(seed + 104_729 * (draw + 1))
+            return images + torch.randn(images.shape, generator=gen) * extra[:, None, None]
+
+        return post
 
     def to_dict(self) -> dict[str, list[float]]:
         """Each source's standard deviation per channel, grey levels."""
