@@ -164,8 +164,9 @@ NOTES = (
     "- `~ X` after a selected effect: a rival at the same round that the held-out pairs cannot "
     "tell from it (the paired bootstrap 95% CI of the difference in their shrink reaches 0); "
     "the diagnosis reports the set (`confusable_with`) instead of claiming the first.",
-    "- `unexplained` subtracts, for stochastic effects, the gap the fitted model leaves on "
-    "data drawn from itself (its own randomness cannot be explained away).",
+    "- `unexplained` is counted above a floor no model can remove: the larger of the gap the "
+    "pairs' own frame-to-frame noise makes against itself and, for stochastic effects, the "
+    "gap the fitted model leaves on data drawn from itself.",
     "- pose_error is fitted as a constant misregistration and press_error as a depth scale "
     "and offset; their random parts per contact are not fitted, so part of a planted "
     "jitter stays unexplained.",
