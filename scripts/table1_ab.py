@@ -7,6 +7,8 @@ a condition (mean and per-seed accuracy on the real classifier test set):
     python scripts/table1_ab.py cgan RUN_DIR       # what in the cGAN images fails on real
     python scripts/table1_ab.py cgan_lowpass RUN_DIR  # ... with fine detail removed both sides
     python scripts/table1_ab.py rotated RUN_DIR    # every row's models on the yaw-to-90 test set
+    python scripts/table1_ab.py legibility RUN_DIR # every row's models on each translator's
+                                                   # rendering of the classifier test contacts
 
 ``finetune`` starts from the run's ``classify_sim`` models and fine-tunes them as the classify
 stage does, with the classifier settings of table1.yaml's fine-tuning rows (``--lr`` sets
@@ -36,9 +38,11 @@ from tactile_bench.classify.train import (
 )
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.datamodule import stratified_split, stratified_subset
+from tactile_bench.data.pixels import to_uint8
 from tactile_bench.metrics.noise import estimate_pixel_noise
 from tactile_bench.pipeline.stages.classify import load_classifier
 from tactile_bench.translators import image_to_foreground
+from tactile_bench.translators.registry import translator_class
 
 SEEDS = (0, 1, 2)
 N_CLASSES = 27
@@ -244,9 +248,50 @@ def rotated(run: Path) -> None:
         )
 
 
+#: (fit stage, translator) of the rows whose translator the run fitted
+FITTED = (
+    ("fit_cgan", "cgan"),
+    ("finetune_diffusion", "diffusion"),
+    ("fit_calibrated", "calibrated"),
+)
+
+
+def legibility(run: Path) -> None:
+    """Every row's models on the classifier test contacts as real, sim and each fitted
+    translator render them. A row's accuracy on its own translator's rendering of the test
+    contacts, against its accuracy on real: whether its failure on real is the translator's
+    appearance (the same contacts, rendered) or the contacts (the test's poses); and the Real
+    row's accuracy on a rendering: whether the translator's images carry the characters."""
+    test = BrailleSet.load(_stage(run, "braille") / "classifier_test.npz")
+    background = test.real_background.float()
+    renderings = {"real": test.foreground("real"), "sim": test.foreground("sim")}
+    for fit_stage, name in FITTED:
+        translator = translator_class(name).load(_stage(run, fit_stage) / "translator.pt")
+        done = _stage(run, f"translate_{name}") / "_done.json"
+        overrides = json.loads(done.read_text())["config"].get("translator_config") or {}
+        if overrides:  # the row's translate stage's settings (e.g. 2 sampler steps)
+            translator.config = translator.parse_config(translator.config.model_dump() | overrides)
+        images = translator.translate(test.depth, background, torch.Generator().manual_seed(0))
+        renderings[name] = image_to_foreground(to_uint8(images).float(), background)
+    rows = ("real", "sim", "cgan", "diffusion", "calibrated")
+    for stage in (f"classify_{row}" for row in rows):  # every seed the run trained
+        models = [load_classifier(p) for p in sorted(_stage(run, stage).glob("model_seed*.pt"))]
+        scores = {k: [_accuracy(m, x, test.labels) for m in models] for k, x in renderings.items()}
+        print(
+            json.dumps(
+                {"row": stage}
+                | {k: round(float(np.mean(v)), 2) for k, v in scores.items()}
+                | {"per_seed": {k: [round(x, 2) for x in v] for k, v in scores.items()}}
+            ),
+            flush=True,
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("experiment", choices=("finetune", "cgan", "cgan_lowpass", "rotated"))
+    parser.add_argument(
+        "experiment", choices=("finetune", "cgan", "cgan_lowpass", "rotated", "legibility")
+    )
     parser.add_argument("run_dir", type=Path, help="a finished table1.yaml run directory")
     parser.add_argument("--out", type=Path, default=None, help="scratch folder (default: temp)")
     parser.add_argument("--lr", type=float, default=1e-4, help="fine-tuning lr (table1.yaml's)")
@@ -258,6 +303,7 @@ def main() -> None:
             "cgan": lambda: cgan(ns.run_dir, out),
             "cgan_lowpass": lambda: cgan_lowpass(ns.run_dir, out),
             "rotated": lambda: rotated(ns.run_dir),
+            "legibility": lambda: legibility(ns.run_dir),
         }
         experiments[ns.experiment]()
 
