@@ -362,19 +362,31 @@ RANK_ZERO_LOGGER = "lightning.pytorch.utilities.rank_zero"
 LEAFSPEC_DEPRECATION = r"`isinstance\(treespec, LeafSpec\)` is deprecated"
 
 
-class _DropLitLoggerTip(logging.Filter):
+#: what Lightning logs at every Trainer and fit on a machine without accelerators, once per
+#: training: a recipe's 25 trainings printed 75 such lines between the stages' own. A GPU
+#: or TPU that is there but unused still shows ("GPU available: True ..., used: False")
+ROUTINE_NOTICES = (
+    LITLOGGER_TIP,
+    "GPU available: False",
+    "TPU available: False",
+    "`Trainer.fit` stopped: ",
+)
+
+
+class _DropRoutineNotices(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
-        return not str(record.msg).startswith(LITLOGGER_TIP)
+        return not str(record.msg).startswith(ROUTINE_NOTICES)
 
 
 @contextmanager
 def lightning_notices_off() -> Iterator[None]:
-    """Keep two third-party notices out of a fit's output, and only those: Lightning's
-    litlogger tip (filtered on the logger that writes it) and torch's ``LeafSpec``
-    deprecation raised inside Lightning (filtered by exact message and module). Every other
-    warning and log line still shows."""
+    """Keep routine third-party notices out of a fit's output, and only those: Lightning's
+    litlogger tip and its no-accelerator and fit-stopped lines (``ROUTINE_NOTICES``, filtered
+    on the logger that writes them) and torch's ``LeafSpec`` deprecation raised inside
+    Lightning (filtered by exact message and module). Every other warning and log line still
+    shows."""
     logger = logging.getLogger(RANK_ZERO_LOGGER)
-    tip = _DropLitLoggerTip()
+    tip = _DropRoutineNotices()
     logger.addFilter(tip)
     try:
         with warnings.catch_warnings():

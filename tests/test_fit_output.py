@@ -9,9 +9,15 @@ import warnings
 from pathlib import Path
 
 import pytest
+from lightning.pytorch.demos.boring_classes import BoringModel
 
 from tactile_bench.testing import tiny_pairs
-from tactile_bench.training import EVERY_KEY, LITLOGGER_TIP, lightning_notices_off
+from tactile_bench.training import (
+    EVERY_KEY,
+    LITLOGGER_TIP,
+    ROUTINE_NOTICES,
+    lightning_notices_off,
+)
 from tactile_bench.translators import create_translator
 
 
@@ -53,6 +59,7 @@ def test_the_notices_exist_without_the_filter(lightning_log: _Collect) -> None:
         L.Trainer(logger=False, enable_progress_bar=False, enable_model_summary=False)
     assert any("LeafSpec" in str(w.message) for w in caught)
     assert any(m.startswith(LITLOGGER_TIP) for m in lightning_log.messages)
+    assert any(m.startswith("GPU available: False") for m in lightning_log.messages)
 
 
 def test_only_those_notices_are_filtered(lightning_log: _Collect) -> None:
@@ -66,7 +73,7 @@ def test_only_those_notices_are_filtered(lightning_log: _Collect) -> None:
             warnings.warn("another deprecation", FutureWarning, stacklevel=1)
             logging.getLogger("lightning.pytorch.utilities.rank_zero").info("another tip")
     assert [str(w.message) for w in caught] == ["another deprecation"]
-    assert not any(m.startswith(LITLOGGER_TIP) for m in lightning_log.messages)
+    assert not any(m.startswith(ROUTINE_NOTICES) for m in lightning_log.messages)
     assert "another tip" in lightning_log.messages
     # and the filter is gone afterwards
     L.Trainer(logger=False, enable_progress_bar=False, enable_model_summary=False)
@@ -87,7 +94,25 @@ def test_a_checkpointed_fit_logs_none_of_them(tmp_path: Path, lightning_log: _Co
     assert (tmp_path / "checkpoints/last.ckpt").is_file()
     assert not [w for w in caught if "LeafSpec" in str(w.message)]
     noise = [
-        m for m in lightning_log.messages if m.startswith(LITLOGGER_TIP) or "weights_only" in m
+        m for m in lightning_log.messages if m.startswith(ROUTINE_NOTICES) or "weights_only" in m
     ]
-    assert noise == []
-    assert any("`Trainer.fit` stopped" in m for m in lightning_log.messages)  # still shown
+    assert noise == []  # that they are logged without the filter: the test below
+
+
+def test_the_stop_line_is_logged_without_the_filter(
+    tmp_path: Path, lightning_log: _Collect
+) -> None:
+    import lightning as L
+
+    trainer = L.Trainer(
+        max_steps=1,
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        enable_checkpointing=False,
+        default_root_dir=str(tmp_path),
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)  # LeafSpec: the tests above
+        trainer.fit(BoringModel())
+    assert any(m.startswith("`Trainer.fit` stopped: ") for m in lightning_log.messages)

@@ -148,7 +148,8 @@ class Translator(L.LightningModule):
             "logger": loggers if loggers is not None else False,
             "enable_model_summary": False,
             "default_root_dir": str(out_dir),
-            "log_every_n_steps": 10,
+            # an epoch of a small fine-tuning pool has fewer batches than 10: log every epoch
+            "log_every_n_steps": max(1, min(10, len(loader))),
         }
         settings.update(trainer or {})
         settings["precision"] = self.training_precision(settings)
