@@ -9,6 +9,8 @@ a condition (mean and per-seed accuracy on the real classifier test set):
     python scripts/table1_ab.py rotated RUN_DIR    # every row's models on the yaw-to-90 test set
     python scripts/table1_ab.py legibility RUN_DIR # every row's models on each translator's
                                                    # rendering of the classifier test contacts
+    python scripts/table1_ab.py ssim RUN_DIR       # SSIM / MSE on and off the contacts; the
+                                                   # diffusion with and without its camera noise
 
 ``finetune`` starts from the run's ``classify_sim`` models and fine-tunes them as the classify
 stage does, with the classifier settings of table1.yaml's fine-tuning rows (``--lr`` sets
@@ -28,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d
+from torchmetrics.functional.image import structural_similarity_index_measure
 
 from tactile_bench.classify.train import (
     ClassifierConfig,
@@ -287,10 +291,66 @@ def legibility(run: Path) -> None:
         )
 
 
+def _similarity(images: torch.Tensor, real: torch.Tensor, contact: torch.Tensor) -> dict:
+    """SSIM (torchmetrics' map, as the table's) and MSE, whole frame, contact, the rest."""
+    _, ssim_map = structural_similarity_index_measure(
+        images.float(), real, data_range=255.0, return_full_image=True
+    )
+    per_pixel = {"ssim": ssim_map.mean(1), "mse": (images.float() - real).square().mean(1)}
+    return {
+        f"{metric}_{part}": round(float(values[mask].mean()), 4)
+        for metric, values in per_pixel.items()
+        for part, mask in (
+            ("all", torch.ones_like(contact)),
+            ("contact", contact),
+            ("rest", ~contact),
+        )
+    }
+
+
+def ssim(run: Path) -> None:
+    """Where the table's SSIM and MSE against real come from: each translate stage's test
+    images scored on the contact (depth > 0.01 mm, grown by 3 px) and off it; then the
+    diffusion translator again with and without the camera noise it adds (one change)."""
+    test = BrailleSet.load(_stage(run, "braille") / "test.npz")
+    real = test.real.float()
+    contact = F.max_pool2d((test.depth > 0.01).float(), 7, 1, 3)[:, 0] > 0
+    print(json.dumps({"contact_share": round(float(contact.float().mean()), 3)}), flush=True)
+    for stage in (
+        "translate_sim",
+        "translate_aug",
+        "translate_cgan",
+        "translate_diffusion",
+        "translate_calibrated",
+    ):
+        images = torch.from_numpy(np.load(_stage(run, stage) / "test.npz")["images"])
+        print(json.dumps({"stage": stage} | _similarity(images, real, contact)), flush=True)
+    done = json.loads((_stage(run, "translate_diffusion") / "_done.json").read_text())
+    settings = done["config"].get("translator_config") or {}
+    for noise in (True, False):
+        translator = translator_class("diffusion").load(
+            _stage(run, "finetune_diffusion") / "translator.pt"
+        )
+        translator.config = translator.parse_config(
+            translator.config.model_dump() | settings | {"observation_noise": noise}
+        )
+        images = translator.translate(
+            test.depth, test.real_background.float(), torch.Generator().manual_seed(0)
+        )
+        print(
+            json.dumps(
+                {"stage": f"diffusion, observation_noise={noise}"}
+                | _similarity(to_uint8(images), real, contact)
+            ),
+            flush=True,
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "experiment", choices=("finetune", "cgan", "cgan_lowpass", "rotated", "legibility")
+        "experiment",
+        choices=("finetune", "cgan", "cgan_lowpass", "rotated", "legibility", "ssim"),
     )
     parser.add_argument("run_dir", type=Path, help="a finished table1.yaml run directory")
     parser.add_argument("--out", type=Path, default=None, help="scratch folder (default: temp)")
@@ -304,6 +364,7 @@ def main() -> None:
             "cgan_lowpass": lambda: cgan_lowpass(ns.run_dir, out),
             "rotated": lambda: rotated(ns.run_dir),
             "legibility": lambda: legibility(ns.run_dir),
+            "ssim": lambda: ssim(ns.run_dir),
         }
         experiments[ns.experiment]()
 
