@@ -6,6 +6,7 @@ a condition (mean and per-seed accuracy on the real classifier test set):
     python scripts/table1_ab.py finetune RUN_DIR   # fraction vs optimiser steps vs yaw vs lr
     python scripts/table1_ab.py cgan RUN_DIR       # what in the cGAN images fails on real
     python scripts/table1_ab.py cgan_lowpass RUN_DIR  # ... with fine detail removed both sides
+    python scripts/table1_ab.py cgan_noise RUN_DIR    # ... with the diffusion's camera noise added
     python scripts/table1_ab.py rotated RUN_DIR    # every row's models on the yaw-to-90 test set
     python scripts/table1_ab.py legibility RUN_DIR # every row's models on each translator's
                                                    # rendering of the classifier test contacts
@@ -236,6 +237,28 @@ def cgan_lowpass(run: Path, out: Path, sigma_px: float = 1.0) -> None:
         _train_and_score(name, (train_fg, labels), (test_side, test.labels), pool_side, out)
 
 
+def cgan_noise(run: Path, out: Path) -> None:
+    """cGAN row with camera noise drawn into its training images as the diffusion translator
+    draws it into its samples (per channel, the level ``estimate_pixel_noise`` measures on
+    the real fine-tuning pool; one fixed draw an image, seeded): the one thing the two
+    translators' images differ in by construction (the cGAN draws nothing at inference)."""
+    braille = _stage(run, "braille")
+    test = BrailleSet.load(braille / "classifier_test.npz")
+    pool_fg = BrailleSet.load(braille / "finetune.npz").foreground("real")
+    fg, labels = _images(run, "translate_cgan")
+    std = estimate_pixel_noise(pool_fg)
+    draw = torch.randn(fg.shape, generator=torch.Generator().manual_seed(0))
+    noisy = fg + draw * std.view(1, -1, 1, 1)
+    print(json.dumps({"noise_std_foreground_units": [round(float(v), 5) for v in std]}))
+    _train_and_score(
+        "cgan + the diffusion's camera noise",
+        (noisy, labels),
+        (test.foreground("real"), test.labels),
+        pool_fg,
+        out,
+    )
+
+
 def rotated(run: Path) -> None:
     """Every classify stage's models on the paired test set (yaws to 90 deg) and its yaw-0 part."""
     test = BrailleSet.load(_stage(run, "braille") / "test.npz")
@@ -350,7 +373,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "experiment",
-        choices=("finetune", "cgan", "cgan_lowpass", "rotated", "legibility", "ssim"),
+        choices=("finetune", "cgan", "cgan_lowpass", "cgan_noise", "rotated", "legibility", "ssim"),
     )
     parser.add_argument("run_dir", type=Path, help="a finished table1.yaml run directory")
     parser.add_argument("--out", type=Path, default=None, help="scratch folder (default: temp)")
@@ -362,6 +385,7 @@ def main() -> None:
             "finetune": lambda: finetune(ns.run_dir, out, ns.lr),
             "cgan": lambda: cgan(ns.run_dir, out),
             "cgan_lowpass": lambda: cgan_lowpass(ns.run_dir, out),
+            "cgan_noise": lambda: cgan_noise(ns.run_dir, out),
             "rotated": lambda: rotated(ns.run_dir),
             "legibility": lambda: legibility(ns.run_dir),
             "ssim": lambda: ssim(ns.run_dir),
