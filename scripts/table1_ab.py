@@ -28,6 +28,7 @@ import math
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -122,14 +123,32 @@ def _images(run: Path, stage: str) -> tuple[torch.Tensor, torch.Tensor]:
     return image_to_foreground(images, background), torch.from_numpy(arrays["labels"])
 
 
-def cgan(run: Path, out: Path) -> None:
-    """cGAN row: train the base classifier on its images as they are and with one change."""
+def _cgan_inputs(
+    run: Path,
+) -> tuple[tuple[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor], torch.Tensor]:
+    """The cGAN row's (training foregrounds, labels), the real classifier test set's
+    (foregrounds, labels) and the unlabeled real fine-tuning pool's foregrounds."""
     braille = _stage(run, "braille")
     test = BrailleSet.load(braille / "classifier_test.npz")
-    test_fg = test.foreground("real")
     pool_fg = BrailleSet.load(braille / "finetune.npz").foreground("real")
-    fg, labels = _images(run, "translate_cgan")
-    classifier_set = BrailleSet.load(braille / "classifier.npz")
+    return _images(run, "translate_cgan"), (test.foreground("real"), test.labels), pool_fg
+
+
+def _fitted_translator(run: Path, fit_stage: str, name: str, **settings: object) -> Any:
+    """The translator ``fit_stage`` fitted, with the inference settings its row's translate
+    stage used (e.g. 2 sampler steps) and ``settings`` on top."""
+    translator = translator_class(name).load(_stage(run, fit_stage) / "translator.pt")
+    done = json.loads((_stage(run, f"translate_{name}") / "_done.json").read_text())
+    overrides = (done["config"].get("translator_config") or {}) | settings
+    if overrides:
+        translator.config = translator.parse_config(translator.config.model_dump() | overrides)
+    return translator
+
+
+def cgan(run: Path, out: Path) -> None:
+    """cGAN row: train the base classifier on its images as they are and with one change."""
+    (fg, labels), test, pool_fg = _cgan_inputs(run)
+    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
     real_fg = classifier_set.foreground("real")
     contact = (classifier_set.depth > 0).expand(-1, 3, -1, -1)
 
@@ -174,7 +193,7 @@ def cgan(run: Path, out: Path) -> None:
         "cgan, contrast scaled to real": rescaled,
     }
     for name, change in conditions.items():
-        _train_and_score(name, (change(fg), labels), (test_fg, test.labels), pool_fg, out)
+        _train_and_score(name, (change(fg), labels), test, pool_fg, out)
 
 
 def _train_and_score(
@@ -215,16 +234,12 @@ def cgan_lowpass(run: Path, out: Path, sigma_px: float = 1.0) -> None:
     """cGAN row with the fine detail removed from every image it is trained and tested on:
     if the cGAN's classifiers read its high-frequency artefacts (label-correlated, absent in
     real frames), removing them from both sides lifts the accuracy on real."""
-    braille = _stage(run, "braille")
-    test = BrailleSet.load(braille / "classifier_test.npz")
-    pool_fg = BrailleSet.load(braille / "finetune.npz").foreground("real")
-    fg, labels = _images(run, "translate_cgan")
+    (fg, labels), (test_fg, test_labels), pool_fg = _cgan_inputs(run)
     radius = int(math.ceil(3 * sigma_px))
 
     def low(x: torch.Tensor) -> torch.Tensor:
         return gaussian_blur2d(x, (2 * radius + 1,) * 2, (sigma_px, sigma_px), "reflect")
 
-    test_fg = test.foreground("real")
     pairs = {
         "cgan as translated": (fg, test_fg, pool_fg),
         f"cgan, both sides low-passed (Gaussian sigma {sigma_px} px)": (
@@ -234,7 +249,7 @@ def cgan_lowpass(run: Path, out: Path, sigma_px: float = 1.0) -> None:
         ),
     }
     for name, (train_fg, test_side, pool_side) in pairs.items():
-        _train_and_score(name, (train_fg, labels), (test_side, test.labels), pool_side, out)
+        _train_and_score(name, (train_fg, labels), (test_side, test_labels), pool_side, out)
 
 
 def cgan_noise(run: Path, out: Path) -> None:
@@ -242,21 +257,12 @@ def cgan_noise(run: Path, out: Path) -> None:
     draws it into its samples (per channel, the level ``estimate_pixel_noise`` measures on
     the real fine-tuning pool; one fixed draw an image, seeded): the one thing the two
     translators' images differ in by construction (the cGAN draws nothing at inference)."""
-    braille = _stage(run, "braille")
-    test = BrailleSet.load(braille / "classifier_test.npz")
-    pool_fg = BrailleSet.load(braille / "finetune.npz").foreground("real")
-    fg, labels = _images(run, "translate_cgan")
+    (fg, labels), test, pool_fg = _cgan_inputs(run)
     std = estimate_pixel_noise(pool_fg)
     draw = torch.randn(fg.shape, generator=torch.Generator().manual_seed(0))
     noisy = fg + draw * std.view(1, -1, 1, 1)
     print(json.dumps({"noise_std_foreground_units": [round(float(v), 5) for v in std]}))
-    _train_and_score(
-        "cgan + the diffusion's camera noise",
-        (noisy, labels),
-        (test.foreground("real"), test.labels),
-        pool_fg,
-        out,
-    )
+    _train_and_score("cgan + the diffusion's camera noise", (noisy, labels), test, pool_fg, out)
 
 
 def rotated(run: Path) -> None:
@@ -293,11 +299,7 @@ def legibility(run: Path) -> None:
     background = test.real_background.float()
     renderings = {"real": test.foreground("real"), "sim": test.foreground("sim")}
     for fit_stage, name in FITTED:
-        translator = translator_class(name).load(_stage(run, fit_stage) / "translator.pt")
-        done = _stage(run, f"translate_{name}") / "_done.json"
-        overrides = json.loads(done.read_text())["config"].get("translator_config") or {}
-        if overrides:  # the row's translate stage's settings (e.g. 2 sampler steps)
-            translator.config = translator.parse_config(translator.config.model_dump() | overrides)
+        translator = _fitted_translator(run, fit_stage, name)
         images = translator.translate(test.depth, background, torch.Generator().manual_seed(0))
         renderings[name] = image_to_foreground(to_uint8(images).float(), background)
     rows = ("real", "sim", "cgan", "diffusion", "calibrated")
@@ -348,14 +350,9 @@ def ssim(run: Path) -> None:
     ):
         images = torch.from_numpy(np.load(_stage(run, stage) / "test.npz")["images"])
         print(json.dumps({"stage": stage} | _similarity(images, real, contact)), flush=True)
-    done = json.loads((_stage(run, "translate_diffusion") / "_done.json").read_text())
-    settings = done["config"].get("translator_config") or {}
     for noise in (True, False):
-        translator = translator_class("diffusion").load(
-            _stage(run, "finetune_diffusion") / "translator.pt"
-        )
-        translator.config = translator.parse_config(
-            translator.config.model_dump() | settings | {"observation_noise": noise}
+        translator = _fitted_translator(
+            run, "finetune_diffusion", "diffusion", observation_noise=noise
         )
         images = translator.translate(
             test.depth, test.real_background.float(), torch.Generator().manual_seed(0)

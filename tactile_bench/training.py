@@ -386,8 +386,8 @@ def lightning_notices_off() -> Iterator[None]:
     Lightning (filtered by exact message and module). Every other warning and log line still
     shows."""
     logger = logging.getLogger(RANK_ZERO_LOGGER)
-    tip = _DropRoutineNotices()
-    logger.addFilter(tip)
+    notices = _DropRoutineNotices()
+    logger.addFilter(notices)
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings(
@@ -398,7 +398,7 @@ def lightning_notices_off() -> Iterator[None]:
             )
             yield
     finally:
-        logger.removeFilter(tip)
+        logger.removeFilter(notices)
 
 
 def _share_tensors_through_files(strategy: Any) -> None:
