@@ -227,9 +227,8 @@ def test_corpus_is_the_same_built_in_worker_processes(tmp_path, objects) -> None
     one = build_ycb_slide_standin(tmp_path / "one", workers=1, **kw)
     two = build_ycb_slide_standin(tmp_path / "two", workers=2, **kw)
     assert [s["sha256"] for s in one["shards"]] == [s["sha256"] for s in two["shards"]]
-    assert {k: v for k, v in one.items() if k != "pairs_per_s"} == {
-        k: v for k, v in two.items() if k != "pairs_per_s"
-    }
+    # no timing in it either: the manifest's hash keys every stage downstream
+    assert one == two
 
 
 def test_jobs_are_split_so_every_worker_has_as_many_frames() -> None:
