@@ -41,6 +41,8 @@ def _cmd_fit(ns: argparse.Namespace) -> int:
     recipe = load_recipe(ns.recipe, ns.set)
     if ns.run_dir:
         recipe.run_dir = Path(ns.run_dir)
+    if ns.jobs is not None:
+        recipe.jobs = ns.jobs
     results = run_recipe(recipe, force=tuple(ns.force), progress=not ns.no_progress)
     print(f"\nrun directory: {recipe.run_dir}")
     for result in results:
@@ -341,6 +343,13 @@ def _add_fit(sub: argparse._SubParsersAction) -> None:
     )
     fit.add_argument("--run-dir", help="where to write (default: runs/<recipe name>)")
     fit.add_argument("--no-progress", action="store_true", help="no progress bars")
+    fit.add_argument(
+        "--jobs",
+        type=int,
+        metavar="N",
+        help="run up to N stages that do not read each other side by side, each in its own "
+        "process on cores/N threads (default: the recipe's jobs, else 1)",
+    )
     fit.set_defaults(func=_cmd_fit)
 
 

@@ -129,6 +129,7 @@ Rule = Callable[[str, object], None]
 #: every numeric or list argument of every command, by its ``dest``
 ARG_RULES: dict[str, Rule] = {
     "threads": Count(1, 1024),
+    "jobs": Count(1, 64),
     "seed": Seed(),
     "model_seed": Count(0, 1_000_000),
     "size": Count(MIN_SIZE, MAX_SIZE),

@@ -6,6 +6,8 @@ every stage: the stage after which it rose is the one that set the new peak, and
 stage's figure is the run's peak. (Linux can reset the mark through /proc/self/clear_refs,
 but that would also hide the run's true peak from ``/usr/bin/time``, so it is not done.)
 Worker processes a stage spawns (``parallel_seeds``) have marks of their own, not counted.
+A stage run side by side (``jobs`` > 1) reads the mark of its worker process, which ran
+the worker's earlier stages too.
 """
 
 from __future__ import annotations

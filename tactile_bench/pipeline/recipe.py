@@ -49,6 +49,7 @@ class _RecipeDoc(BaseModel):
     seed: int = 0
     run_dir: str | None = None
     trainer: dict[str, Any] = {}
+    jobs: int = Field(default=1, ge=1, le=64)
     stages: list[_StageDoc] = Field(min_length=1)
 
 
@@ -73,6 +74,7 @@ class Recipe:
     trainer: dict[str, Any]
     stages: list[Stage] = field(default_factory=list)
     description: str = ""
+    jobs: int = 1  # stages run side by side at most (pipeline.side_by_side)
 
     def stage(self, name: str) -> Stage:
         for stage in self.stages:
@@ -162,7 +164,7 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     check_name(doc.name, f"{path}: name")
     check_trainer(doc.trainer, str(path))
     run_dir = Path(doc.run_dir) if doc.run_dir else Path("runs") / doc.name
-    recipe = Recipe(path, doc.name, doc.seed, run_dir, doc.trainer, [], doc.description)
+    recipe = Recipe(path, doc.name, doc.seed, run_dir, doc.trainer, [], doc.description, doc.jobs)
     seen: set[str] = set()
     for index, stage_doc in enumerate(doc.stages):
         where = f"{path}: stages[{index}] ({stage_doc.name})"

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import logging
 import shutil
-import time
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +21,9 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.outputs import OutputLock, check_output_dir
 from tactile_bench.hardware import resolve_precision, trainer_device
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
-from tactile_bench.pipeline.memory import peak_rss_mib
 from tactile_bench.pipeline.provenance import InputHasher, run_record
 from tactile_bench.pipeline.recipe import Recipe, Stage
+from tactile_bench.pipeline.side_by_side import Ran, execute, run_side_by_side
 from tactile_bench.pipeline.stages.base import StageContext, StageResult
 from tactile_bench.training import result_settings
 
@@ -137,29 +136,11 @@ def _publish(result: StageResult, names: tuple[str, ...], run_dir: Path) -> None
             tmp.replace(run_dir / src.name)
 
 
-def _run_stage(stage: Stage, ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
-    """Run one stage; its errors name it, and an interrupt says what was kept."""
-    try:
-        return stage.kind.run(ctx)
-    except TactileBenchError as exc:
-        message = str(exc)
-        if not message.startswith(f"stage {stage.name}"):
-            message = f"stage {stage.name}: {message}"
-        raise TactileBenchError(message) from None
-    except KeyboardInterrupt:
-        log.warning(
-            "stage %s interrupted: finished stages and its training checkpoint (if any) are "
-            "kept in %s; rerun the same command to resume",
-            stage.name,
-            ctx.directory,
-        )
-        raise
-
-
 def run_recipe(
     recipe: Recipe, force: tuple[str, ...] = (), progress: bool = True
 ) -> list[StageResult]:
-    """Run (or reuse) every stage; returns their results in order.
+    """Run (or reuse) every stage; returns their results in order. With ``recipe.jobs`` > 1,
+    stages that do not read each other run side by side (``side_by_side``).
 
     Writes ``run.json``: seeds, versions, platform, the hash of the recipe and of every user
     file the recipe names, and each stage's config and output hashes (see ``provenance``).
@@ -175,47 +156,62 @@ def run_recipe(
 def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[StageResult]:
     recipe.run_dir.mkdir(parents=True, exist_ok=True)
     hasher = InputHasher(recipe.run_dir, recipe.path.parent)
-    results: dict[str, StageResult] = {}
-    for stage in recipe.stages:
+
+    def start(stage: Stage, results: dict[str, StageResult]) -> tuple[Any, StageContext | None]:
+        """The cached result, or the stage's directory made ready and the context to run it."""
         inputs = {slot: [results[r] for r in refs] for slot, refs in stage.inputs.items()}
         files = hasher.config_files(stage.config.model_dump(mode="json"))
         directory = recipe.run_dir / f"{stage.name}-{stage_key(recipe, stage, inputs, files)}"
         if stage.name in force and directory.exists():
             shutil.rmtree(directory)
-        result = read_done(directory)
-        if result is not None:
+        cached = read_done(directory)
+        if cached is not None:
             log.info("stage %s: finished before, reusing %s", stage.name, directory)
-        else:
-            (directory / DONE).unlink(missing_ok=True)
-            directory.mkdir(parents=True, exist_ok=True)
-            log.info("stage %s (%s): running in %s", stage.name, stage.kind.name, directory)
-            trainer = dict(recipe.trainer)
-            if not progress:  # --no-progress silences Lightning's bars too (not in any key)
-                trainer.setdefault("enable_progress_bar", False)
-            ctx = StageContext(
-                stage.name,
-                directory,
-                stage.config,
-                inputs,
-                recipe.seed,
-                trainer,
-                recipe.run_dir,
-                recipe.path.parent,
-                progress,
-                previous=list(results.values()),
-            )
-            start = time.perf_counter()
-            outputs, metrics = _run_stage(stage, ctx)
-            wall = time.perf_counter() - start
-            result = _finish(stage, directory, outputs, metrics, wall, peak_rss_mib())
-            log.info(
-                "stage %s: done in %.1f s (run's peak RSS so far %.0f MiB)",
-                stage.name,
-                result.wall_time_s,
-                result.peak_rss_mib,
-            )
+            _publish(cached, stage.kind.publish, recipe.run_dir)
+            return cached, None
+        (directory / DONE).unlink(missing_ok=True)
+        directory.mkdir(parents=True, exist_ok=True)
+        log.info("stage %s (%s): running in %s", stage.name, stage.kind.name, directory)
+        trainer = dict(recipe.trainer)
+        if not progress:  # --no-progress silences Lightning's bars too (not in any key)
+            trainer.setdefault("enable_progress_bar", False)
+        before = recipe.stages[: recipe.stages.index(stage)]
+        earlier = [results[s.name] for s in before if s.name in results]
+        ctx = StageContext(
+            stage.name,
+            directory,
+            stage.config,
+            inputs,
+            recipe.seed,
+            trainer,
+            recipe.run_dir,
+            recipe.path.parent,
+            progress,
+            previous=earlier,
+        )
+        return directory, ctx
+
+    def finish(stage: Stage, directory: Path, ran: Ran) -> StageResult:
+        outputs, metrics, wall, peak = ran
+        result = _finish(stage, directory, outputs, metrics, wall, peak)
+        log.info(
+            "stage %s: done in %.1f s (peak RSS of its process so far %.0f MiB)",
+            stage.name,
+            result.wall_time_s,
+            result.peak_rss_mib,
+        )
         _publish(result, stage.kind.publish, recipe.run_dir)
-        results[stage.name] = result
+        return result
+
+    if recipe.jobs > 1:
+        results = run_side_by_side(recipe.stages, recipe.jobs, start, finish)
+    else:
+        results = {}
+        for stage in recipe.stages:
+            handle, ctx = start(stage, results)
+            results[stage.name] = (
+                handle if ctx is None else finish(stage, handle, execute(stage, ctx))
+            )
     atomic_write_json(
         recipe.run_dir / "run.json", run_record(recipe, list(results.values()), hasher)
     )

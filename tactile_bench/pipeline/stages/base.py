@@ -55,7 +55,7 @@ class StageResult:
     manifest_hash: str
     wall_time_s: float
     cached: bool = False
-    peak_rss_mib: float | None = None  # the run's peak RSS at the end of the stage
+    peak_rss_mib: float | None = None  # its process's peak RSS at the end of the stage
 
     def path(self, output: str) -> Path:
         """Absolute path of a named output file."""
@@ -75,7 +75,7 @@ class StageContext:
     run_dir: Path
     recipe_dir: Path = Path(".")
     progress: bool = True
-    previous: list[StageResult] = field(default_factory=list)  # stages before this one
+    previous: list[StageResult] = field(default_factory=list)  # finished stages before it
 
     def input(self, slot: str) -> StageResult:
         """The single stage feeding ``slot``."""
@@ -127,6 +127,8 @@ class StageKind:
     ``auto`` resolves to here, so another machine does not silently reuse it. Stages that run
     networks only in fixed fp32 leave it False (their inputs' hashes already rerun them when
     an upstream stage's outputs change), and so do data stages, cached across machines.
+    ``waits_for_earlier``: it reads every stage listed before it (``ctx.previous``), so
+    with ``jobs`` > 1 it starts only when all of them have finished.
     """
 
     name: str
@@ -138,3 +140,4 @@ class StageKind:
     exactly_one_of: tuple[str, ...] = ()
     publish: tuple[str, ...] = ()
     precision_dependent: bool = False
+    waits_for_earlier: bool = False

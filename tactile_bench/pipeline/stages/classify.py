@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import multiprocessing.util
 import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -229,7 +230,13 @@ def _seed_pool(workers: int) -> ProcessPoolExecutor:
             _POOL[1].shutdown(wait=False, cancel_futures=True)
         torch.multiprocessing.set_sharing_strategy("file_system")
         spawn = torch.multiprocessing.get_context("spawn")
-        _POOL = (workers, ProcessPoolExecutor(workers, mp_context=spawn))
+        executor = ProcessPoolExecutor(workers, mp_context=spawn)
+        # shut down before a process that is itself a worker (``jobs`` > 1) joins its
+        # children at exit: multiprocessing joins them before the interpreter would tell
+        # this pool's idle workers to stop, and would wait for them for ever. Priority
+        # above the pool's own queues' (10), which must still carry the stop messages
+        multiprocessing.util.Finalize(executor, executor.shutdown, exitpriority=100)
+        _POOL = (workers, executor)
     return _POOL[1]
 
 

@@ -178,8 +178,9 @@ def _document(
     doc.table(["stage", "kind", "wall time (s)", "cached in this run", "precision"], timing)
     doc.paragraph(
         f"Sum of stage wall times: {total:.0f} s ({total / 60:.1f} min); a cached stage shows "
-        "the time it took when it ran. The precision column is the one each stage's networks "
-        "trained or sampled in (— for stages without)."
+        "the time it took when it ran, and stages run side by side (the recipe's `jobs`) "
+        "overlap, so the run itself can take less. The precision column is the one each "
+        "stage's networks trained or sampled in (— for stages without)."
     )
     doc.heading("Reproducibility")
     doc.bullets([f"{k}: {v}" for k, v in _versions().items()] + [f"recipe seed: {ctx.seed}"])
@@ -265,4 +266,5 @@ STAGE = StageKind(
     run=_run,
     input_slots={"rows": True, "similarity": False},
     publish=("results_json", "results_md", "table_json", "report_md", "report_html"),
+    waits_for_earlier=True,  # its timing table lists every stage before it
 )

@@ -1,0 +1,205 @@
+"""Stages that do not read each other, run side by side in worker processes (``jobs: N``).
+
+A network stage on two threads keeps its second core busy only part of the time (Python,
+Lightning's loop, data loading and the small tensors of a fit run on one), and a data or
+diagnosis stage mostly on one. Run one after another, a 2-core machine idled about a
+quarter of quick.yaml (docs/results/precision.md). With ``jobs: N`` the runner starts every
+stage whose inputs are finished, up to N at a time, each in its own spawned process on
+``cores // N`` threads; a stage that summarises the run (``waits_for_earlier``: the
+report) waits for every stage listed before it.
+
+What a stage computes does not change: it reads the same input files and writes the same
+outputs under the same cache key. Only the thread count of each stage differs, which moves
+float sums in their last bits, as another machine would. Each worker's log lines go to the
+same stderr; progress bars are off in workers (two would interleave).
+
+Stopping: Ctrl-C reaches every process of the terminal's group, so each running stage
+saves its checkpoint as it would alone; a SIGTERM to the runner is passed on to the
+workers. Either way the runner waits for them to finish saving, then raises
+``KeyboardInterrupt`` (exit 130). A stage that fails stops the others the same way (their
+checkpoints are kept), and its error is raised.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import signal
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager, suppress
+from typing import Any
+
+import torch
+
+from tactile_bench.errors import TactileBenchError
+from tactile_bench.pipeline.memory import peak_rss_mib
+from tactile_bench.pipeline.recipe import Stage
+from tactile_bench.pipeline.stages.base import StageContext
+
+log = logging.getLogger("tactile_bench")
+
+#: what a stage's run hands back: outputs, metrics, wall time (s), its process's peak RSS
+Ran = tuple[dict[str, str], dict[str, Any], float, float]
+
+
+def execute(stage: Stage, ctx: StageContext) -> Ran:
+    """Run one stage here; its errors name it, and an interrupt says what was kept."""
+    start = time.perf_counter()
+    try:
+        outputs, metrics = stage.kind.run(ctx)
+    except TactileBenchError as exc:
+        message = str(exc)
+        if not message.startswith(f"stage {stage.name}"):
+            message = f"stage {stage.name}: {message}"
+        raise TactileBenchError(message) from None
+    except KeyboardInterrupt:
+        log.warning(
+            "stage %s interrupted: finished stages and its training checkpoint (if any) are "
+            "kept in %s; rerun the same command to resume",
+            stage.name,
+            ctx.directory,
+        )
+        raise
+    return outputs, metrics, time.perf_counter() - start, peak_rss_mib()
+
+
+def _start_worker(threads: int, level: int) -> None:
+    """A worker's process-wide settings, as the command line sets them for itself."""
+    from tactile_bench.allocator import keep_freed_memory
+
+    keep_freed_memory()
+    torch.set_num_threads(threads)
+    logger = logging.getLogger("tactile_bench")
+    logger.setLevel(level)
+    if not logger.handlers:
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        logger.addHandler(handler)
+        logger.propagate = False
+
+
+def _execute_in_worker(stage: Stage, ctx: StageContext) -> Ran:
+    ctx = dataclasses.replace(
+        ctx, progress=False, trainer={**ctx.trainer, "enable_progress_bar": False}
+    )
+    return execute(stage, ctx)
+
+
+def threads_per_job(jobs: int) -> int:
+    """Each of ``jobs`` side-by-side stages gets an equal share of this process's threads."""
+    return max(1, torch.get_num_threads() // jobs)
+
+
+@contextmanager
+def _sigterm_to_workers(pool: ProcessPoolExecutor) -> Iterator[None]:
+    """While the pool runs: a SIGTERM to the runner reaches its workers (each saves its
+    checkpoint), and the runner itself stops as on Ctrl-C."""
+
+    def handler(signum: int, frame: Any) -> None:
+        _signal_workers(pool, signal.SIGTERM)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _signal_workers(pool: ProcessPoolExecutor, signum: int) -> None:
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        if process.is_alive() and process.pid is not None:
+            with suppress(ProcessLookupError):
+                os.kill(process.pid, signum)
+
+
+def run_side_by_side(
+    stages: list[Stage],
+    jobs: int,
+    start: Callable[[Stage, dict[str, Any]], tuple[Any, StageContext | None]],
+    finish: Callable[[Stage, Any, Ran], Any],
+) -> dict[str, Any]:
+    """Every stage's result, ``jobs`` stages at a time as their inputs finish.
+
+    ``start(stage, results)`` returns ``(result, None)`` for a stage taken from the cache
+    and ``(handle, ctx)`` for one to run; ``finish(stage, handle, ran)`` turns a run into
+    its result. Both run in this process, in the order stages become ready.
+    """
+    results: dict[str, Any] = {}
+    waiting = list(stages)
+    running: dict[Future[Ran], tuple[Stage, Any]] = {}
+    level = logging.getLogger("tactile_bench").getEffectiveLevel()
+    spawn = torch.multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(
+        jobs, mp_context=spawn, initializer=_start_worker, initargs=(threads_per_job(jobs), level)
+    )
+    try:
+        with _sigterm_to_workers(pool):
+            while waiting or running:
+                _submit_ready(stages, waiting, running, results, jobs, pool, start)
+                if not running:
+                    if waiting:  # the recipe loader refuses references to later stages
+                        raise TactileBenchError(f"stage {waiting[0].name}: its inputs never ran")
+                    break
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in done:
+                    stage, handle = running.pop(future)
+                    results[stage.name] = finish(stage, handle, _ran(stage, future))
+    except BaseException:
+        # a failure or an interrupt: the other running stages save and stop, then this raises
+        _signal_workers(pool, signal.SIGTERM)
+        wait(running)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    return {stage.name: results[stage.name] for stage in stages}
+
+
+def _ran(stage: Stage, future: Future[Ran]) -> Ran:
+    try:
+        return future.result()
+    except BrokenProcessPool:
+        raise TactileBenchError(
+            f"stage {stage.name}: its worker process died (out of memory?); "
+            "--jobs 1 runs the stages one at a time in this process"
+        ) from None
+
+
+def _submit_ready(
+    stages: list[Stage],
+    waiting: list[Stage],
+    running: dict[Future[Ran], tuple[Stage, Any]],
+    results: dict[str, Any],
+    jobs: int,
+    pool: ProcessPoolExecutor,
+    start: Callable[[Stage, dict[str, Any]], tuple[Any, StageContext | None]],
+) -> None:
+    """Start waiting stages whose inputs are finished, in recipe order, while a job is free;
+    a stage found in the cache finishes at once and may make later ones ready."""
+    progressed = True
+    while progressed and len(running) < jobs:
+        progressed = False
+        for stage in list(waiting):
+            if len(running) >= jobs:
+                break
+            if not _ready(stage, stages, results):
+                continue
+            waiting.remove(stage)
+            handle, ctx = start(stage, results)
+            if ctx is None:
+                results[stage.name] = handle
+            else:
+                running[pool.submit(_execute_in_worker, stage, ctx)] = (stage, handle)
+            progressed = True
+            break  # rescan from the top: recipe order first
+
+
+def _ready(stage: Stage, stages: list[Stage], results: dict[str, Any]) -> bool:
+    if stage.kind.waits_for_earlier:
+        earlier = stages[: stages.index(stage)]
+        return all(s.name in results for s in earlier)
+    return all(ref in results for refs in stage.inputs.values() for ref in refs)
