@@ -12,6 +12,8 @@ a condition (mean and per-seed accuracy on the real classifier test set):
                                                    # rendering of the classifier test contacts
     python scripts/table1_ab.py ssim RUN_DIR       # SSIM / MSE on and off the contacts; the
                                                    # diffusion with and without its camera noise
+    python scripts/table1_ab.py footprint RUN_DIR  # each rendering's contact: contrast, spread
+                                                   # past the contact, share of fine detail
 
 ``finetune`` starts from the run's ``classify_sim`` models and fine-tunes them as the classify
 stage does, with the classifier settings of table1.yaml's fine-tuning rows (``--lr`` sets
@@ -366,11 +368,61 @@ def ssim(run: Path) -> None:
         )
 
 
+def footprint(run: Path) -> None:
+    """How each rendering of the same test contacts draws a contact, against real: contact
+    contrast (mean |foreground| where the depth presses, grey levels), the share of the
+    change drawn past the pressed pixels (what the gel's elastic spread puts there, above the
+    frame's own noise), and the share of the contact's change finer than ~2 px (what a
+    Gaussian of sigma 1 px removes). Measurements only: which of them differ from real."""
+    test = BrailleSet.load(_stage(run, "braille") / "test.npz")
+    pressed = (test.depth > 0.01).expand(-1, 3, -1, -1)
+    near = F.max_pool2d(pressed.float(), 15, 1, 7) > 0  # within 7 px of a pressed pixel
+    renderings = {"real": test.real}
+    for row in ("sim", "cgan", "diffusion", "calibrated"):
+        renderings[row] = torch.from_numpy(
+            np.load(_stage(run, f"translate_{row}") / "test.npz")["images"]
+        )
+    background = test.real_background.float()
+    for name, images in renderings.items():
+        fg = (image_to_foreground(images.float(), background) - 0.5) * 255
+        centred = fg - fg.mean((-2, -1), keepdim=True)
+        far_var = float(centred[~near].pow(2).mean())  # the frame's own noise, away from contacts
+        energy = fg.pow(2)
+        past = near & ~pressed
+        spread = float(energy[past].sum() - far_var * past.sum()) / float(
+            energy[near].sum() - far_var * near.sum()
+        )
+        fine = fg - gaussian_blur2d(fg, (7, 7), (1.0, 1.0), "reflect")
+        print(
+            json.dumps(
+                {
+                    "rendering": name,
+                    "contact_contrast": round(float(fg[pressed].abs().mean()), 2),
+                    "share_past_the_pressed_pixels": round(spread, 3),
+                    "fine_share_on_contact": round(
+                        float(fine[pressed].pow(2).sum() / energy[pressed].sum()), 3
+                    ),
+                    "noise_grey": round(far_var**0.5, 2),
+                }
+            ),
+            flush=True,
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "experiment",
-        choices=("finetune", "cgan", "cgan_lowpass", "cgan_noise", "rotated", "legibility", "ssim"),
+        choices=(
+            "finetune",
+            "cgan",
+            "cgan_lowpass",
+            "cgan_noise",
+            "rotated",
+            "legibility",
+            "ssim",
+            "footprint",
+        ),
     )
     parser.add_argument("run_dir", type=Path, help="a finished table1.yaml run directory")
     parser.add_argument("--out", type=Path, default=None, help="scratch folder (default: temp)")
@@ -386,6 +438,7 @@ def main() -> None:
             "rotated": lambda: rotated(ns.run_dir),
             "legibility": lambda: legibility(ns.run_dir),
             "ssim": lambda: ssim(ns.run_dir),
+            "footprint": lambda: footprint(ns.run_dir),
         }
         experiments[ns.experiment]()
 
