@@ -122,6 +122,23 @@ def build_ycb_slide_standin(
         shards = _shard_records(root, config)
     bar.close()
     elapsed = time.perf_counter() - started
+    manifest = _manifest(key, config, gel, shards, total)
+    # the rate is logged, not written: the manifest is a stage output whose hash keys every
+    # stage downstream, so a timing in it would make an identical corpus look new
+    if done:
+        log.info(
+            "ycb-slide stand-in: %d pairs in %.1f s (%.1f pairs/s)", done, elapsed, done / elapsed
+        )
+    atomic_write_json(root / "manifest.json", manifest)
+    partial_key_file.unlink(missing_ok=True)
+    return manifest
+
+
+def _manifest(
+    key: str, config: StandinConfig, gel: GelSpec, shards: list[dict[str, Any]], total: int
+) -> dict[str, Any]:
+    """What ``load_pairs`` reads back: the settings, the shards and the pair counts, as JSON
+    types (tuples as lists, as a reload returns them)."""
     manifest = {
         "format": FORMAT,
         "kind": "ycb_slide_standin",
@@ -135,16 +152,7 @@ def build_ycb_slide_standin(
         "meta_object_names": list(config.objects),
         "frames_dropped": total - sum(s["n"] for s in shards),  # sensor would collide
     }
-    manifest = json.loads(json.dumps(manifest))  # tuples -> lists: what a reload returns
-    # the rate is logged, not written: the manifest is a stage output whose hash keys every
-    # stage downstream, so a timing in it would make an identical corpus look new
-    if done:
-        log.info(
-            "ycb-slide stand-in: %d pairs in %.1f s (%.1f pairs/s)", done, elapsed, done / elapsed
-        )
-    atomic_write_json(root / "manifest.json", manifest)
-    partial_key_file.unlink(missing_ok=True)
-    return manifest
+    return json.loads(json.dumps(manifest))
 
 
 def _corpus_key(

@@ -36,6 +36,7 @@ from tactile_bench.diagnose.candidates import (
 )
 from tactile_bench.diagnose.gapfit import (
     GAP_METRIC,
+    PostDraw,
     Target,
     fit_candidate,
     fit_jointly,
@@ -228,35 +229,21 @@ def explain_gap(
     held_idx = _check_split(data, held_idx, "held-out")
     names = list(DEFAULT_CANDIDATES if candidates is None else candidates)
     [get_candidate(n) for n in names]  # an unknown name is a one-line error before any fit
-    cache: dict[str, torch.Tensor] = {}  # fitted response lookups, shared by both splits
-    base_fit = make_base(data, fit_idx, lookup_from=fit_idx, lookup_cache=cache)
-    base_held = make_base(data, held_idx, lookup_from=fit_idx, lookup_cache=cache)
-    base_fit.precompute(), base_held.precompute()  # once, before the fits take subsets
-    target_fit, target_held = Target.of(data.real[fit_idx]), Target.of(data.real[held_idx])
+    fit, held = _splits(data, fit_idx, held_idx)
+    (base_fit, target_fit), (base_held, target_held) = fit, held
     gap0 = model_gap(base_held, target_held, {}, seed)
     g0 = float(gap0.mean())
-    held = data.subset(held_idx)
-    noise = frame_noise(held.depth, held.sim, held.real, held.background, held.sim_background)
+    pairs = data.subset(held_idx)
+    noise = frame_noise(pairs.depth, pairs.sim, pairs.real, pairs.background, pairs.sim_background)
     background, background_note = _background_line(data, held_idx, target_held, gap0, seed)
     threshold = MIN_SHARE * g0
 
-    fits = _fit_each(names, {}, (base_fit, target_fit), (base_held, target_held), seed, progress)
+    fits = _fit_each(names, {}, fit, held, seed, progress)
     singles = sorted(
         (_row(n, p, gap0, g, seed) for n, (p, g) in fits.items()), key=lambda r: -r.shrink
     )
-    # a candidate that alone removes nothing is not refitted in later rounds; one below the
-    # threshold still is (screened first, ``_worth_refitting``): camera noise that dominates
-    # the first gap masks a deterministic effect's single share (an optical response under
-    # read noise of 13 grey levels: 0.2%) until the noise is modelled
-    useful = [r.effect for r in singles if g0 - r.gap_after > 0]
-    # on a noisy sim, per-frame camera noise stays in play whatever its single fit did: it
-    # removes nothing alone, but an effect that smooths the sim's own noise (a blur) leaves
-    # a texture only the noise restores (third renderer, blur under noise in sim and real:
-    # 0.258 unexplained without this refit, 0.000 with it). A noise-free sim does not ask
-    # for it: there the noise would only patch the texture of other misfits
     noisy_sim = float(noise.sim.sqrt().max()) > NOISY_SIM
-    noise_like = [n for n in names if noisy_sim and _is_camera_noise(n) and n not in useful]
-    useful += noise_like
+    useful, noise_like = _refit_pool(names, singles, g0, noisy_sim)
     n_screen = min(len(fit_idx), SCREEN_PAIRS)
     screen = (base_fit.subset(torch.arange(n_screen)), target_fit.subset(torch.arange(n_screen)))
 
@@ -268,17 +255,8 @@ def explain_gap(
     topped = noise.topped_up(seed) if noisy_sim else None
 
     def beyond_denoising(name: str) -> bool:
-        """On a noisy sim, ``name`` still removes the threshold's share with every draw's
-        noise brought back to the sim's level: it changes the image formation, not only
-        the sim's noise (third renderer, nothing planted, noise in sim and real: the
-        response lookup was selected at 0.053 for replacing the noisy colour change)."""
-        if topped is None or _is_camera_noise(name):  # it adds noise: it cannot denoise
-            return True
-        with_it = {**selected, name: options[name][0]}
-        before, after = (
-            model_gap(base_held, target_held, e, seed, post=topped) for e in (selected, with_it)
-        )
-        if float(before.mean() - after.mean()) >= threshold:
+        params = options[name][0]
+        if _beyond_denoising(name, params, selected, held, topped, threshold, seed):
             return True
         set_aside.append(name)
         return False
@@ -306,15 +284,9 @@ def explain_gap(
         if not unmasked:  # the single fits were made against a gap the noise dominated
             kept = _worth_refitting(rest, fits, selected, screen)
             rest = kept + [n for n in rest if n in noise_like and n not in kept]
-        options = _fit_each(
-            rest, selected, (base_fit, target_fit), (base_held, target_held), seed, progress
-        )
+        options = _fit_each(rest, selected, fit, held, seed, progress)
     if len(selected) >= 2:
-        joint = fit_jointly(selected, base_fit, target_fit, seed=seed)
-        # kept if it fits the fit split better: the held-out split only scores
-        fit_gaps = [model_gap(base_fit, target_fit, e, seed).mean() for e in (joint, selected)]
-        if float(fit_gaps[0]) < float(fit_gaps[1]):
-            selected, current = joint, model_gap(base_held, target_held, joint, seed)
+        selected, current = _joint_if_better(selected, current, fit, held, seed)
     result = _result(
         ranking,
         singles,
@@ -329,6 +301,74 @@ def explain_gap(
     )
     result.set_aside_as_denoising = [n for n in dict.fromkeys(set_aside) if n not in selected]
     return result
+
+
+def _splits(
+    data: PairedData, fit_idx: torch.Tensor, held_idx: torch.Tensor
+) -> tuple[tuple[Base, Target], tuple[Base, Target]]:
+    """The fit and held-out splits as (sim side, real target); the response lookups are
+    fitted on the fit split once and shared by both."""
+    cache: dict[str, torch.Tensor] = {}
+    base_fit = make_base(data, fit_idx, lookup_from=fit_idx, lookup_cache=cache)
+    base_held = make_base(data, held_idx, lookup_from=fit_idx, lookup_cache=cache)
+    base_fit.precompute(), base_held.precompute()  # once, before the fits take subsets
+    return (base_fit, Target.of(data.real[fit_idx])), (base_held, Target.of(data.real[held_idx]))
+
+
+def _refit_pool(
+    names: Sequence[str], singles: Sequence[EffectFit], g0: float, noisy_sim: bool
+) -> tuple[list[str], list[str]]:
+    """The candidates refitted in later rounds, and which of them are there as camera noise.
+
+    A candidate that alone removes nothing is not refitted; one below the threshold still is
+    (screened first, ``_worth_refitting``): camera noise that dominates the first gap masks a
+    deterministic effect's single share (an optical response under read noise of 13 grey
+    levels: 0.2%) until the noise is modelled. On a noisy sim, per-frame camera noise stays
+    in play whatever its single fit did: it removes nothing alone, but an effect that smooths
+    the sim's own noise (a blur) leaves a texture only the noise restores (third renderer,
+    blur under noise in sim and real: 0.258 unexplained without this refit, 0.000 with it).
+    A noise-free sim does not ask for it: there the noise would only patch the texture of
+    other misfits.
+    """
+    useful = [r.effect for r in singles if g0 - r.gap_after > 0]
+    noise_like = [n for n in names if noisy_sim and _is_camera_noise(n) and n not in useful]
+    return useful + noise_like, noise_like
+
+
+def _beyond_denoising(
+    name: str,
+    params: Mapping[str, float],
+    selected: Mapping[str, Mapping[str, float]],
+    held: tuple[Base, Target],
+    topped: PostDraw | None,
+    threshold: float,
+    seed: int,
+) -> bool:
+    """On a noisy sim (``topped``: the draws' noise brought back to the sim's level),
+    ``name`` still removes the threshold's share: it changes the image formation, not only
+    the sim's noise (third renderer, nothing planted, noise in sim and real: the response
+    lookup was selected at 0.053 for replacing the noisy colour change)."""
+    if topped is None or _is_camera_noise(name):  # it adds noise: it cannot denoise
+        return True
+    with_it = {**selected, name: params}
+    before, after = (model_gap(*held, e, seed, post=topped) for e in (selected, with_it))
+    return float(before.mean() - after.mean()) >= threshold
+
+
+def _joint_if_better(
+    selected: dict[str, dict[str, float]],
+    current: torch.Tensor,
+    fit: tuple[Base, Target],
+    held: tuple[Base, Target],
+    seed: int,
+) -> tuple[dict[str, dict[str, float]], torch.Tensor]:
+    """The selection refitted jointly, kept if it fits the fit split better (the held-out
+    split only scores), with its held-out per-pair gap; else the selection as it was."""
+    joint = fit_jointly(selected, *fit, seed=seed)
+    fit_gaps = [model_gap(*fit, e, seed).mean() for e in (joint, selected)]
+    if float(fit_gaps[0]) < float(fit_gaps[1]):
+        return joint, model_gap(*held, joint, seed)
+    return selected, current
 
 
 def _result(
