@@ -14,9 +14,10 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
 from tactile_bench.allocator import keep_freed_memory
+from tactile_bench.console import configure_logging
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.args import check_arguments, check_environment, output_locks
 
@@ -430,30 +431,6 @@ def _add_list(sub: argparse._SubParsersAction) -> None:
     lst.set_defaults(func=_cmd_list)
 
 
-class _CurrentStderr(logging.StreamHandler):
-    """Writes to whatever ``sys.stderr`` is at the time (tests and notebooks swap it; a
-    handler bound to the first one would write to a closed stream)."""
-
-    @property
-    def stream(self) -> Any:  # type: ignore[override]
-        return sys.stderr
-
-    @stream.setter
-    def stream(self, value: Any) -> None:
-        pass
-
-
-def _configure_logging(level: int) -> None:
-    """Our own messages on stderr; Lightning keeps its own handler (no duplicated lines)."""
-    logger = logging.getLogger("tactile_bench")
-    logger.setLevel(level)
-    if not logger.handlers:
-        handler = _CurrentStderr()
-        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
-        logger.addHandler(handler)
-        logger.propagate = False
-
-
 def main(args: list[str] | None = None) -> int:
     """Run the command line; returns the exit code instead of exiting, for in-process tests."""
     os.environ.setdefault("WANDB_MODE", "offline")
@@ -474,7 +451,7 @@ def main(args: list[str] | None = None) -> int:
         ns = parser.parse_args(args)
     except SystemExit as exc:  # --help or a usage error: argparse already printed
         return int(exc.code or 0)
-    _configure_logging(logging.DEBUG if ns.verbose else logging.INFO)
+    configure_logging(logging.DEBUG if ns.verbose else logging.INFO)
     try:
         # every argument, output location and environment setting, before any work
         check_arguments(ns)

@@ -35,6 +35,8 @@ from typing import Any
 
 import torch
 
+from tactile_bench.allocator import keep_freed_memory
+from tactile_bench.console import configure_logging
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.pipeline.memory import peak_rss_mib
 from tactile_bench.pipeline.recipe import Stage
@@ -69,17 +71,9 @@ def execute(stage: Stage, ctx: StageContext) -> Ran:
 
 def _start_worker(threads: int, level: int) -> None:
     """A worker's process-wide settings, as the command line sets them for itself."""
-    from tactile_bench.allocator import keep_freed_memory
-
     keep_freed_memory()
     torch.set_num_threads(threads)
-    logger = logging.getLogger("tactile_bench")
-    logger.setLevel(level)
-    if not logger.handlers:
-        handler = logging.StreamHandler()
-        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
-        logger.addHandler(handler)
-        logger.propagate = False
+    configure_logging(level)
 
 
 def _execute_in_worker(stage: Stage, ctx: StageContext) -> Ran:
@@ -89,7 +83,7 @@ def _execute_in_worker(stage: Stage, ctx: StageContext) -> Ran:
     return execute(stage, ctx)
 
 
-def threads_per_job(jobs: int) -> int:
+def _threads_per_job(jobs: int) -> int:
     """Each of ``jobs`` side-by-side stages gets an equal share of this process's threads."""
     return max(1, torch.get_num_threads() // jobs)
 
@@ -135,7 +129,7 @@ def run_side_by_side(
     level = logging.getLogger("tactile_bench").getEffectiveLevel()
     spawn = torch.multiprocessing.get_context("spawn")
     pool = ProcessPoolExecutor(
-        jobs, mp_context=spawn, initializer=_start_worker, initargs=(threads_per_job(jobs), level)
+        jobs, mp_context=spawn, initializer=_start_worker, initargs=(_threads_per_job(jobs), level)
     )
     try:
         with _sigterm_to_workers(pool):
@@ -178,24 +172,20 @@ def _submit_ready(
     pool: ProcessPoolExecutor,
     start: Callable[[Stage, dict[str, Any]], tuple[Any, StageContext | None]],
 ) -> None:
-    """Start waiting stages whose inputs are finished, in recipe order, while a job is free;
-    a stage found in the cache finishes at once and may make later ones ready."""
-    progressed = True
-    while progressed and len(running) < jobs:
-        progressed = False
-        for stage in list(waiting):
-            if len(running) >= jobs:
-                break
-            if not _ready(stage, stages, results):
-                continue
-            waiting.remove(stage)
-            handle, ctx = start(stage, results)
-            if ctx is None:
-                results[stage.name] = handle
-            else:
-                running[pool.submit(_execute_in_worker, stage, ctx)] = (stage, handle)
-            progressed = True
-            break  # rescan from the top: recipe order first
+    """Start waiting stages whose inputs are finished, in recipe order, while a job is free.
+    One pass suffices: a stage reads only earlier ones, so a stage found in the cache (it
+    finishes at once) can make only stages later in the pass ready."""
+    for stage in list(waiting):
+        if len(running) >= jobs:
+            return
+        if not _ready(stage, stages, results):
+            continue
+        waiting.remove(stage)
+        handle, ctx = start(stage, results)
+        if ctx is None:
+            results[stage.name] = handle
+        else:
+            running[pool.submit(_execute_in_worker, stage, ctx)] = (stage, handle)
 
 
 def _ready(stage: Stage, stages: list[Stage], results: dict[str, Any]) -> bool:
