@@ -70,3 +70,16 @@ def test_encoder_is_seeded_and_its_kid_sees_a_shift() -> None:
     kid_same, _ = kid(features, same, subsets=10, subset_size=64)
     kid_other, _ = kid(features, other, subsets=10, subset_size=64)
     assert kid_other > 5 * max(kid_same, 1e-4)
+
+
+def test_ssim_in_chunks_equals_ssim_of_the_whole_batch() -> None:
+    """ssim_mse bounds its memory by chunks; the mean over a ragged last chunk is unchanged."""
+    from torchmetrics.functional.image import structural_similarity_index_measure
+
+    from tactile_bench.metrics.image import SSIM_CHUNK
+
+    gen = torch.Generator().manual_seed(1)
+    real = 255 * torch.rand(2 * SSIM_CHUNK + 5, 3, 24, 24, generator=gen)
+    pred = (real + 30 * torch.randn(real.shape, generator=gen)).clamp(0, 255)
+    whole = structural_similarity_index_measure(pred, real, data_range=255.0)
+    assert ssim_mse(pred, real)["ssim"] == pytest.approx(float(whole), abs=1e-6)

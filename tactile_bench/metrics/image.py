@@ -17,11 +17,28 @@ def _as_float255(images: torch.Tensor) -> torch.Tensor:
     return images.to(torch.float32)
 
 
+#: images per SSIM call: torchmetrics stacks five padded float copies of its batch, so a
+#: whole 837-image test set at 64 x 64 took 2.9 GB at once (measured); 64 at a time ~0.2 GB
+SSIM_CHUNK = 64
+
+
 def ssim_mse(pred: torch.Tensor, target: torch.Tensor) -> dict[str, float]:
-    """Mean SSIM and mean squared error over a batch of (N, 3, S, S) images in 0..255."""
+    """Mean SSIM and mean squared error over a batch of (N, 3, S, S) images in 0..255.
+
+    SSIM is the mean of per-image SSIMs, computed a chunk at a time to bound memory.
+    """
     pred, target = _as_float255(pred), _as_float255(target)
     if pred.shape != target.shape:
         raise ValueError(f"shape mismatch: {tuple(pred.shape)} vs {tuple(target.shape)}")
-    ssim = structural_similarity_index_measure(pred, target, data_range=255.0)
+    per_image = [
+        structural_similarity_index_measure(
+            pred[i : i + SSIM_CHUNK],
+            target[i : i + SSIM_CHUNK],
+            data_range=255.0,
+            reduction="none",
+        )
+        for i in range(0, len(pred), SSIM_CHUNK)
+    ]
+    ssim = torch.cat(per_image).mean()
     mse = torch.mean((pred - target) ** 2)
     return {"ssim": float(ssim), "mse": float(mse)}
