@@ -25,7 +25,7 @@ from tactile_bench.pipeline.provenance import machine, versions
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind, StageResult
 from tactile_bench.report.document import Document
 from tactile_bench.report.figures import per_class_heatmap_png
-from tactile_bench.report.shape import shape_checks
+from tactile_bench.report.shape import DECIDED_AT, shape_checks
 from tactile_bench.report.table import (
     PAPER_TABLE,
     columns,
@@ -141,8 +141,13 @@ def _document(
     )
     doc.heading("The paper's claims, checked on our numbers")
     doc.table(
-        ["claim", "measured", "holds"],
-        [[c["claim"], c["measured"], "yes" if c["holds"] else "NO"] for c in checks],
+        ["claim", "measured", "holds", "decided by the seeds"],
+        [[c["claim"], c["measured"], "yes" if c["holds"] else "NO", _decided(c)] for c in checks],
+    )
+    doc.paragraph(
+        "A claim is decided by the seeds when the difference it rests on is more than "
+        f"{DECIDED_AT:g} standard errors (from the rows' seed stds) from where it would turn; "
+        "an undecided claim holds or fails within classifier training noise."
     )
     if similarity:
         doc.heading("Image similarity on the braille test set")
@@ -185,6 +190,17 @@ def _document(
     doc.heading("Reproducibility")
     doc.bullets([f"{k}: {v}" for k, v in _versions().items()] + [f"recipe seed: {ctx.seed}"])
     return doc
+
+
+def _decided(check: dict[str, Any]) -> str:
+    if check["decided"] is None:
+        return "—"
+    if check["decided"]:
+        return "yes"
+    return (
+        f"no: {abs(check['gap']):.2f} points from where it turns, "
+        f"{DECIDED_AT:g} s.e. {DECIDED_AT * check['gap_error']:.2f}"
+    )
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
@@ -256,7 +272,11 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         "per_class": "per_class.png",
     }
     outputs |= {k.replace(":", "_"): v.name for k, v in figures.items() if k != "per_class"}
-    return outputs, {"rows": len(rows), "checks_failed": sum(not c["holds"] for c in checks)}
+    return outputs, {
+        "rows": len(rows),
+        "checks_failed": sum(not c["holds"] for c in checks),
+        "checks_undecided": sum(c["decided"] is False for c in checks),
+    }
 
 
 STAGE = StageKind(
