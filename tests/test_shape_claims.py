@@ -75,3 +75,16 @@ def test_a_threshold_claim_counts_its_distance_to_the_threshold() -> None:
     assert _claim(shape_checks(_seeded(real=(100.0, 0.0))), "Real is near")["decided"] is True
     near = _claim(shape_checks(_seeded(real=(96.0, 2.0))), "Real is near")
     assert near["holds"] is True and near["decided"] is False  # 1 point above, s.e. 1.15
+
+
+def test_every_claim_explained_in_the_docs_names_a_claim_and_a_section_there() -> None:
+    """The report points failing claims at their experiments: both ends must exist."""
+    from pathlib import Path
+
+    from tactile_bench.report.shape import CLAIMS, EXPERIMENTS, EXPERIMENTS_DOC
+
+    claims = {c[0] for c in CLAIMS} | {"diffusion SSIM is above cGAN SSIM"}
+    assert set(EXPERIMENTS) <= claims
+    doc = (Path(__file__).resolve().parents[1] / EXPERIMENTS_DOC).read_text()
+    headings = {line.lstrip("#").strip() for line in doc.splitlines() if line.startswith("#")}
+    assert set(EXPERIMENTS.values()) <= headings

@@ -25,7 +25,12 @@ from tactile_bench.pipeline.provenance import machine, versions
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind, StageResult
 from tactile_bench.report.document import Document
 from tactile_bench.report.figures import per_class_heatmap_png
-from tactile_bench.report.shape import DECIDED_AT, shape_checks
+from tactile_bench.report.shape import (
+    DECIDED_AT,
+    EXPERIMENTS,
+    EXPERIMENTS_DOC,
+    shape_checks,
+)
 from tactile_bench.report.table import (
     PAPER_TABLE,
     columns,
@@ -149,6 +154,16 @@ def _document(
         f"{DECIDED_AT:g} standard errors (from the rows' seed stds) from where it would turn; "
         "an undecided claim holds or fails within classifier training noise."
     )
+    explained = [
+        f"{c['claim']}: {'holds' if c['holds'] else 'fails'} here"
+        f"{'' if c['decided'] else ', within seed noise'}; the A/B experiments on "
+        f"this project's surrogate: {EXPERIMENTS_DOC}, section '{EXPERIMENTS[c['claim']]}'"
+        for c in checks
+        if c["claim"] in EXPERIMENTS and (not c["holds"] or c["decided"] is False)
+    ]
+    if explained:
+        doc.paragraph("Failing or undecided claims, and where the experiments behind them are:")
+        doc.bullets(explained)
     if similarity:
         doc.heading("Image similarity on the braille test set")
         doc.table(
