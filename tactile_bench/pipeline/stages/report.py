@@ -156,7 +156,7 @@ def _document(
     )
     explained = [
         f"{c['claim']}: {'holds' if c['holds'] else 'fails'} here"
-        f"{'' if c['decided'] else ', within seed noise'}; the A/B experiments on "
+        f"{', within seed noise' if c['decided'] is False else ''}; the A/B experiments on "
         f"this project's surrogate: {EXPERIMENTS_DOC}, section '{EXPERIMENTS[c['claim']]}'"
         for c in checks
         if c["claim"] in EXPERIMENTS and (not c["holds"] or c["decided"] is False)
