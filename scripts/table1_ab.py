@@ -7,6 +7,7 @@ a condition (mean and per-seed accuracy on the real classifier test set):
     python scripts/table1_ab.py cgan RUN_DIR       # what in the cGAN images fails on real
     python scripts/table1_ab.py cgan_lowpass RUN_DIR  # ... with fine detail removed both sides
     python scripts/table1_ab.py cgan_noise RUN_DIR    # ... with the diffusion's camera noise added
+    python scripts/table1_ab.py cgan_bands RUN_DIR    # ... coarse / fine detail swapped with real's
     python scripts/table1_ab.py rotated RUN_DIR    # every row's models on the yaw-to-90 test set
     python scripts/table1_ab.py legibility RUN_DIR # every row's models on each translator's
                                                    # rendering of the classifier test contacts
@@ -254,6 +255,32 @@ def cgan_lowpass(run: Path, out: Path, sigma_px: float = 1.0) -> None:
         _train_and_score(name, (train_fg, labels), (test_side, test_labels), pool_side, out)
 
 
+def cgan_bands(run: Path, out: Path, sigma_px: float = 1.0) -> None:
+    """cGAN row with its images' coarse and fine detail swapped, band by band, with the real
+    frames of the same classifier contacts: which band carries what fails on real. Each
+    condition keeps one band of the cGAN image and takes the other from real (Gaussian
+    sigma_px split); the test set is real, unchanged."""
+    (fg, labels), test, pool_fg = _cgan_inputs(run)
+    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
+    if not torch.equal(classifier_set.labels, labels):
+        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    real_fg = classifier_set.foreground("real")
+    radius = int(math.ceil(3 * sigma_px))
+
+    def low(x: torch.Tensor) -> torch.Tensor:
+        return gaussian_blur2d(x, (2 * radius + 1,) * 2, (sigma_px, sigma_px), "reflect")
+
+    cgan_low, real_low = low(fg), low(real_fg)
+    conditions = {
+        f"real's coarse + cGAN's fine detail (split at sigma {sigma_px} px)": real_low
+        + (fg - cgan_low),
+        f"cGAN's coarse + real's fine detail (split at sigma {sigma_px} px)": cgan_low
+        + (real_fg - real_low),
+    }
+    for name, images in conditions.items():
+        _train_and_score(name, (images, labels), test, pool_fg, out)
+
+
 def cgan_noise(run: Path, out: Path) -> None:
     """cGAN row with camera noise drawn into its training images as the diffusion translator
     draws it into its samples (per channel, the level ``estimate_pixel_noise`` measures on
@@ -418,6 +445,7 @@ def main() -> None:
             "cgan",
             "cgan_lowpass",
             "cgan_noise",
+            "cgan_bands",
             "rotated",
             "legibility",
             "ssim",
@@ -435,6 +463,7 @@ def main() -> None:
             "cgan": lambda: cgan(ns.run_dir, out),
             "cgan_lowpass": lambda: cgan_lowpass(ns.run_dir, out),
             "cgan_noise": lambda: cgan_noise(ns.run_dir, out),
+            "cgan_bands": lambda: cgan_bands(ns.run_dir, out),
             "rotated": lambda: rotated(ns.run_dir),
             "legibility": lambda: legibility(ns.run_dir),
             "ssim": lambda: ssim(ns.run_dir),
