@@ -455,15 +455,18 @@ def main() -> None:
     parser.add_argument("run_dir", type=Path, help="a finished table1.yaml run directory")
     parser.add_argument("--out", type=Path, default=None, help="scratch folder (default: temp)")
     parser.add_argument("--lr", type=float, default=1e-4, help="fine-tuning lr (table1.yaml's)")
+    parser.add_argument(
+        "--sigma", type=float, default=1.0, help="band split, Gaussian px (cgan_lowpass/_bands)"
+    )
     ns = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out = ns.out or Path(tmp)
         experiments: dict[str, Callable[[], None]] = {
             "finetune": lambda: finetune(ns.run_dir, out, ns.lr),
             "cgan": lambda: cgan(ns.run_dir, out),
-            "cgan_lowpass": lambda: cgan_lowpass(ns.run_dir, out),
+            "cgan_lowpass": lambda: cgan_lowpass(ns.run_dir, out, ns.sigma),
             "cgan_noise": lambda: cgan_noise(ns.run_dir, out),
-            "cgan_bands": lambda: cgan_bands(ns.run_dir, out),
+            "cgan_bands": lambda: cgan_bands(ns.run_dir, out, ns.sigma),
             "rotated": lambda: rotated(ns.run_dir),
             "legibility": lambda: legibility(ns.run_dir),
             "ssim": lambda: ssim(ns.run_dir),
