@@ -117,7 +117,7 @@ def machine_line(info: dict[str, Any]) -> str:
     threads = info["torch_threads"]
     return (
         f"Machine: CPU capability {info['cpu_capability']}, native bf16 {native}, {threads} "
-        f"thread{'s' * (threads != 1)}; precision: auto -> {info['auto_precision']}"
+        f"thread{'s' * (threads != 1)} a stage; precision: auto -> {info['auto_precision']}"
     )
 
 
