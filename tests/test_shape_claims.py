@@ -88,3 +88,12 @@ def test_every_claim_explained_in_the_docs_names_a_claim_and_a_section_there() -
     doc = (Path(__file__).resolve().parents[1] / EXPERIMENTS_DOC).read_text()
     headings = {line.lstrip("#").strip() for line in doc.splitlines() if line.startswith("#")}
     assert set(EXPERIMENTS.values()) <= headings
+
+
+def test_a_row_over_one_seed_leaves_the_claim_undecidable_not_decided() -> None:
+    rows = [
+        {"row": "sim_ft20", "accuracy": {"mean": 0.60, "std": 0.0}, "seeds": [0]},
+        {"row": "sim", "accuracy": {"mean": 0.30, "std": 0.0}, "seeds": [0]},
+    ]
+    check = _claim(shape_checks(rows), "Sim + 20% fine-tuning is above Sim")
+    assert check["holds"] is True and check["decided"] is None

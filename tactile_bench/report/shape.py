@@ -33,7 +33,9 @@ def _stats(rows: Sequence[Mapping[str, Any]]) -> dict[str, tuple[float, float]]:
         s = summarize(r.get("accuracy"))
         if s is not None:
             n = len(r.get("seeds") or r.get("extra", {}).get("seeds", ())) or s[2]
-            out[str(r["row"])] = (100.0 * s[0], 100.0 * s[1] / math.sqrt(n))
+            # one seed has no spread to judge by: its error is unknown (nan), not zero
+            error = 100.0 * s[1] / math.sqrt(n) if n > 1 else math.nan
+            out[str(r["row"])] = (100.0 * s[0], error)
     return out
 
 
@@ -103,6 +105,7 @@ def _judge(gaps: tuple[_Gap, ...], stats: Mapping[str, tuple[float, float]]) -> 
     """Holds on the means; decided when no gap it rests on is within the seeds' noise.
 
     A claim that fails is decided by its clearest failing gap; one that holds needs all.
+    With a row measured over one seed, ``decided`` is None: there is no noise to judge by.
     """
     judged = []
     for gap in gaps:
@@ -110,6 +113,8 @@ def _judge(gaps: tuple[_Gap, ...], stats: Mapping[str, tuple[float, float]]) -> 
         holds = value > 0 or (not gap.strict and value == 0)
         judged.append((holds, abs(value) > DECIDED_AT * error, value, error))
     holds = all(h for h, *_ in judged)
+    if any(math.isnan(error) for *_, error in judged):  # a row measured over one seed
+        return {"holds": holds, "decided": None, "gap": judged[0][2], "gap_error": math.nan}
     deciding = judged if holds else [j for j in judged if not j[0]]
     decided = all(d for _, d, *_ in deciding) if holds else any(d for _, d, *_ in deciding)
     pick = min if holds else max  # the weakest gap a hold rests on; the clearest failure
