@@ -233,22 +233,24 @@ def _train_and_score(
     _report(name, accs, bn_on_real_pool=round(float(np.mean(adapted)), 2))
 
 
+def _low_pass(x: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """What is coarser than a Gaussian of ``sigma_px`` (kernel to 3 sigma): the coarse band."""
+    radius = int(math.ceil(3 * sigma_px))
+    return gaussian_blur2d(x, (2 * radius + 1,) * 2, (sigma_px, sigma_px), "reflect")
+
+
 def cgan_lowpass(run: Path, out: Path, sigma_px: float = 1.0) -> None:
     """cGAN row with the fine detail removed from every image it is trained and tested on:
     if the cGAN's classifiers read its high-frequency artefacts (label-correlated, absent in
     real frames), removing them from both sides lifts the accuracy on real."""
     (fg, labels), (test_fg, test_labels), pool_fg = _cgan_inputs(run)
-    radius = int(math.ceil(3 * sigma_px))
-
-    def low(x: torch.Tensor) -> torch.Tensor:
-        return gaussian_blur2d(x, (2 * radius + 1,) * 2, (sigma_px, sigma_px), "reflect")
 
     pairs = {
         "cgan as translated": (fg, test_fg, pool_fg),
         f"cgan, both sides low-passed (Gaussian sigma {sigma_px} px)": (
-            low(fg),
-            low(test_fg),
-            low(pool_fg),
+            _low_pass(fg, sigma_px),
+            _low_pass(test_fg, sigma_px),
+            _low_pass(pool_fg, sigma_px),
         ),
     }
     for name, (train_fg, test_side, pool_side) in pairs.items():
@@ -265,12 +267,8 @@ def cgan_bands(run: Path, out: Path, sigma_px: float = 1.0) -> None:
     if not torch.equal(classifier_set.labels, labels):
         raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
     real_fg = classifier_set.foreground("real")
-    radius = int(math.ceil(3 * sigma_px))
 
-    def low(x: torch.Tensor) -> torch.Tensor:
-        return gaussian_blur2d(x, (2 * radius + 1,) * 2, (sigma_px, sigma_px), "reflect")
-
-    cgan_low, real_low = low(fg), low(real_fg)
+    cgan_low, real_low = _low_pass(fg, sigma_px), _low_pass(real_fg, sigma_px)
     conditions = {
         f"real's coarse + cGAN's fine detail (split at sigma {sigma_px} px)": real_low
         + (fg - cgan_low),
