@@ -40,7 +40,7 @@ def test_fine_tuning_claim_needs_the_three_fractions_in_order() -> None:
 def _seeded(**mean_std: tuple[float, float]) -> list[dict[str, object]]:
     """Rows measured over three classifier seeds: (mean %, seed std %)."""
     return [
-        {"row": row, "accuracy": {"mean": m / 100, "std": s / 100}, "seeds": [0, 1, 2]}
+        {"row": row, "accuracy": {"mean": m / 100, "std": s / 100}, "extra": {"seeds": [0, 1, 2]}}
         for row, (m, s) in mean_std.items()
     ]
 
@@ -92,8 +92,8 @@ def test_every_claim_explained_in_the_docs_names_a_claim_and_a_section_there() -
 
 def test_a_row_over_one_seed_leaves_the_claim_undecidable_not_decided() -> None:
     rows = [
-        {"row": "sim_ft20", "accuracy": {"mean": 0.60, "std": 0.0}, "seeds": [0]},
-        {"row": "sim", "accuracy": {"mean": 0.30, "std": 0.0}, "seeds": [0]},
+        {"row": "sim_ft20", "accuracy": {"mean": 0.60, "std": 0.0}, "extra": {"seeds": [0]}},
+        {"row": "sim", "accuracy": {"mean": 0.30, "std": 0.0}, "extra": {"seeds": [0]}},
     ]
     check = _claim(shape_checks(rows), "Sim + 20% fine-tuning is above Sim")
     assert check["holds"] is True and check["decided"] is None

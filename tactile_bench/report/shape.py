@@ -32,7 +32,7 @@ def _stats(rows: Sequence[Mapping[str, Any]]) -> dict[str, tuple[float, float]]:
     for r in rows:
         s = summarize(r.get("accuracy"))
         if s is not None:
-            n = len(r.get("seeds") or r.get("extra", {}).get("seeds", ())) or s[2]
+            n = len(r.get("extra", {}).get("seeds", ())) or s[2]  # the report's rows
             # one seed has no spread to judge by: its error is unknown (nan), not zero
             error = 100.0 * s[1] / math.sqrt(n) if n > 1 else math.nan
             out[str(r["row"])] = (100.0 * s[0], error)
@@ -125,7 +125,8 @@ def _judge(gaps: tuple[_Gap, ...], stats: Mapping[str, tuple[float, float]]) -> 
 def shape_checks(
     rows: Sequence[Mapping[str, Any]], similarity: Sequence[Mapping[str, Any]] = ()
 ) -> list[dict[str, Any]]:
-    """One ``{claim, measured, holds}`` per claim whose rows were measured."""
+    """One ``{claim, measured, holds, decided}`` per claim whose rows were measured (and
+    ``gap``, ``gap_error`` in points for the claims on accuracy)."""
     stats = _stats(rows)
     checks = []
     for claim, ids, gaps in CLAIMS:
