@@ -301,7 +301,11 @@ def _add_diagnose(subparsers: Any) -> None:
     )
     diag.add_argument("--fit-fraction", type=float, default=0.5, help="share of pairs for fitting")
     diag.add_argument(
-        "--size", type=int, default=64, help="image size for the Tactile-Diffusion layout"
+        "--size",
+        type=int,
+        metavar="S",
+        help="resize every frame to S x S (default: square frames as they are, others to "
+        "min(64, shorter side); the Tactile-Diffusion layout to 64)",
     )
     diag.add_argument("--no-progress", action="store_true")
     diag.set_defaults(func=_cmd_diagnose)

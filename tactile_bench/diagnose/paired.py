@@ -8,7 +8,12 @@ Layout on disk (documented in docs/diagnosis.md)::
     <root>/background.png             the real sensor's no-contact frame
     <root>/sim_background.png         optional: the simulator's no-contact frame
     <root>/gel.json                   optional: {"width_mm": W, "height_mm": H}, the view
-                                      the square images cover (default: a DIGIT's 18 x 24)
+                                      the images cover (default: a DIGIT's 18 x 24)
+
+The diagnosis works on square S x S images over that view (pixels are then not square in
+mm, as ``GelSpec`` has them). Square frames are used at their own size; frames of another
+shape (a DIGIT's 240 x 320, a GelSight's 4:3) are area-resized to S x S, as the
+Tactile-Diffusion code resizes its frames, and so is every frame when ``size`` is given.
 
 ``<label>/`` may be absent (unlabelled data: files directly under depth/, sim/, real/).
 Labels that are not safe folder names are encoded (``label_to_dir``): ``#`` is written as
@@ -24,6 +29,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import shutil
 import tempfile
@@ -62,6 +68,11 @@ MAX_GEL_MM = 500.0
 #: the deepest penetration a depth image may hold: a DIGIT's gel is about 2 mm thick, a
 #: GelSight's a few mm; 65 mm is a unit mistake (mm written where micrometres belong)
 MAX_PENETRATION_MM = 5.0
+DEFAULT_SIDE = 64  # the paper's image size: frames of other shapes are resized to at most it
+MAX_SIDE = 1024
+#: |log| of the ratio of a frame's proportions to the gel view's above which they disagree:
+#: 10%, more than a cropped border, far less than a 3:4 frame turned a quarter (78%)
+MAX_ASPECT_LOG_RATIO = math.log(1.1)
 
 
 @dataclass
@@ -137,15 +148,27 @@ def _check_size(path: Path, im: Image.Image, size: tuple[int, int] | None) -> tu
         raise TactileBenchError(
             f"{path}: is {w} x {h}; a sensor frame here is at least {MIN_SIDE} x {MIN_SIDE}"
         )
-    if w != h:
-        raise TactileBenchError(f"{path}: is {w} x {h}; images must be square (S x S)")
     if size is not None and (w, h) != size:
         raise TactileBenchError(f"{path}: is {w} x {h}, the other images are {size[0]} x {size[1]}")
     return w, h
 
 
-def read_rgb(path: Path, size: tuple[int, int] | None = None) -> torch.Tensor:
-    """(3, S, S) float 0..255 of an 8-bit RGB PNG; other channel counts are errors."""
+def resized(im: Image.Image, side: int | None) -> Image.Image:
+    """``im`` as side x side: a box filter when shrinking (each new pixel the area-weighted
+    mean of the old ones it covers, as a coarser camera pixel integrates their light),
+    bilinear when growing; unchanged for ``side`` None or a frame already that size."""
+    if side is None or im.size == (side, side):
+        return im
+    shrink = side <= min(im.size)
+    how = Image.Resampling.BOX if shrink else Image.Resampling.BILINEAR
+    return im.resize((side, side), how)
+
+
+def read_rgb(
+    path: Path, size: tuple[int, int] | None = None, side: int | None = None
+) -> torch.Tensor:
+    """(3, H, W) float 0..255 of an 8-bit RGB PNG ((3, side, side) if given); other channel
+    counts are errors."""
     im = _open(path)
     if im.mode == "P":
         im = im.convert("RGB")
@@ -155,11 +178,14 @@ def read_rgb(path: Path, size: tuple[int, int] | None = None) -> torch.Tensor:
             f"{path}: has {bands} channel(s) (mode {im.mode}); expected 8-bit RGB (3 channels)"
         )
     _check_size(path, im, size)
+    im = resized(im, side)  # 8-bit RGB in, 8-bit out: rounded as a stored frame is
     return torch.from_numpy(np.asarray(im, dtype=np.uint8).copy()).permute(2, 0, 1).float()
 
 
-def read_depth(path: Path, size: tuple[int, int] | None = None) -> torch.Tensor:
-    """(1, S, S) float mm of a 16-bit grey PNG in micrometres."""
+def read_depth(
+    path: Path, size: tuple[int, int] | None = None, side: int | None = None
+) -> torch.Tensor:
+    """(1, H, W) float mm of a 16-bit grey PNG in micrometres ((1, side, side) if given)."""
     im = _open(path)
     if im.mode not in ("I;16", "I;16B", "I;16L", "I"):
         raise TactileBenchError(
@@ -175,6 +201,8 @@ def read_depth(path: Path, size: tuple[int, int] | None = None) -> torch.Tensor:
             f"{path}: a penetration of {arr.max() / UM_PER_MM:.3g} mm; a tactile sensor's gel "
             f"is a few mm thick (at most {MAX_PENETRATION_MM:g} mm here): wrong unit?"
         )
+    if side is not None:  # in 32-bit float, not rounded to whole micrometres
+        arr = np.asarray(resized(Image.fromarray(arr, mode="F"), side), dtype=np.float32)
     return torch.from_numpy(arr / UM_PER_MM)[None]
 
 
@@ -242,7 +270,30 @@ def detect_layout(root: str | os.PathLike) -> tuple[str, Path]:
     )
 
 
-def _load_layout(root: Path) -> PairedData:
+def working_side(frame: tuple[int, int], size: int | None) -> int | None:
+    """The side S the diagnosis resizes (w, h) frames to; None keeps square frames as they
+    are. Other frames go to ``min(64, shorter side)`` unless ``size`` says otherwise."""
+    if size is not None:
+        return size
+    w, h = frame
+    return None if w == h else min(DEFAULT_SIDE, w, h)
+
+
+def _check_aspect(root: Path, frame: tuple[int, int], gel: tuple[float, float]) -> None:
+    """A non-square frame shows the gel view in its own proportions (square camera pixels);
+    one that does not is a gel.json for another sensor, or a frame turned a quarter."""
+    w, h = frame
+    if w == h:
+        return  # the layout's convention: a square image covers the whole view
+    if abs(math.log((w / h) / (gel[0] / gel[1]))) > MAX_ASPECT_LOG_RATIO:
+        raise TactileBenchError(
+            f"{root}: frames are {w} x {h} (width x height) but the gel view is {gel[0]:g} x "
+            f"{gel[1]:g} mm ({GEL_FILE} or a DIGIT's default); their proportions differ: "
+            f"give {GEL_FILE} the view the frames show"
+        )
+
+
+def _load_layout(root: Path, size: int | None = None) -> PairedData:
     listings = {part: _listing(root / part) for part in PARTS}
     depth_files = listings["depth"]
     if not depth_files:
@@ -260,22 +311,28 @@ def _load_layout(root: Path) -> PairedData:
                 )
     first = next(iter(depth_files.values()))[1]
     with open_header(first) as im:
-        size = _check_size(first, im, None)
+        frame = _check_size(first, im, None)
+    gel = read_gel(root)
+    _check_aspect(root, frame, gel)
+    side = working_side(frame, size)
+    kept = frame if side is None else (side, side)  # each frame is resized as it is read
     check_memory(  # from the first header, before decoding any pixel
         str(root),
-        f"{len(depth_files)} pairs of {size[0]} x {size[1]} pixels",
-        float(len(depth_files)) * size[0] * size[1] * BYTES_PER_PAIR_PIXEL,
+        f"{len(depth_files)} pairs of {kept[0]} x {kept[1]} pixels",
+        float(len(depth_files)) * kept[0] * kept[1] * BYTES_PER_PAIR_PIXEL,
     )
+    if side is not None and frame != kept:
+        log.info("%s: %d x %d frames area-resized to %d x %d", root, *frame, side, side)
     depth, sim, real, labels, names = [], [], [], [], []
     for key, (label, path) in depth_files.items():
-        depth.append(read_depth(path, size))
-        sim.append(read_rgb(root / "sim" / key, size))
-        real.append(read_rgb(root / "real" / key, size))
+        depth.append(read_depth(path, frame, side))
+        sim.append(read_rgb(root / "sim" / key, frame, side))
+        real.append(read_rgb(root / "real" / key, frame, side))
         labels.append(label)
         names.append(path.stem)
-    background = read_rgb(root / "background.png", size)
+    background = read_rgb(root / "background.png", frame, side)
     sim_bg_path = root / "sim_background.png"
-    sim_bg = read_rgb(sim_bg_path, size) if sim_bg_path.exists() else None
+    sim_bg = read_rgb(sim_bg_path, frame, side) if sim_bg_path.exists() else None
     return PairedData(
         torch.stack(depth),
         torch.stack(sim),
@@ -284,7 +341,7 @@ def _load_layout(root: Path) -> PairedData:
         sim_bg,
         labels,
         names,
-        read_gel(root),
+        gel,
     )
 
 
@@ -354,16 +411,16 @@ def _first_background(pairs: PairSet, base: Path) -> torch.Tensor:
     return pairs.real_background[pairs.real_bg_index[0]]
 
 
-def load_paired(root: str | os.PathLike, size: int = 64) -> PairedData:
-    """Read ``root`` in the paired layout or the Tactile-Diffusion braille layout.
-
-    ``size`` applies to the Tactile-Diffusion layout only (its 320 x 240 frames are
-    area-resized like the paper); paired-layout images are used at their own size.
-    """
+def load_paired(root: str | os.PathLike, size: int | None = None) -> PairedData:
+    """Read ``root`` in the paired layout or the Tactile-Diffusion braille layout, as
+    ``size`` x ``size`` images (``working_side`` for the paired layout when None; the
+    Tactile-Diffusion frames are area-resized to 64 then, like the paper's)."""
+    if size is not None and not MIN_SIDE <= size <= MAX_SIDE:
+        raise TactileBenchError(f"--size {size}: must be in {MIN_SIDE}..{MAX_SIDE} pixels")
     layout, base = detect_layout(root)
     if layout == "tactile_diffusion":
-        return _load_tactile_diffusion(base, size)
-    return _load_layout(base)
+        return _load_tactile_diffusion(base, size or DEFAULT_SIDE)
+    return _load_layout(base, size)
 
 
 # ----------------------------------------------------------------------------- writing
