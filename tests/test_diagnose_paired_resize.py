@@ -79,3 +79,20 @@ def test_diagnose_runs_on_digit_shaped_frames(tmp_path: Path) -> None:
     assert main([*args, "--no-progress", "--candidates", "vignetting"]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["n_pairs"] == 8 and report["size"] == 48
+
+
+def test_a_renderer_and_a_camera_at_different_sizes_meet_at_the_smaller(tmp_path: Path) -> None:
+    _write_layout(tmp_path, 48, 64)  # the camera's frames
+    small = _write_layout(tmp_path / "renderer", 36, 48)  # depth and sim at a renderer's size
+    for i in range(3):
+        for part in ("depth", "sim"):
+            (tmp_path / "renderer" / part / f"p{i}.png").replace(tmp_path / part / f"p{i}.png")
+    data = load_paired(tmp_path)
+    assert data.size == 36 and tuple(data.real.shape[-2:]) == (36, 36)
+    order = [int(name[1:]) for name in data.names]
+    for got, i in zip(data.depth, order, strict=True):  # the renderer's depth, box-filtered
+        assert float(got.mean()) == pytest.approx(small[f"depth{i}"].mean() / 1000, rel=5e-3)
+    # the measured no-contact frame is the camera's: at the sim's size it is refused
+    Image.fromarray(np.zeros((48, 36, 3), np.uint8)).save(tmp_path / "background.png")
+    with pytest.raises(TactileBenchError, match=r"background\.png: is 36 x 48, the other"):
+        load_paired(tmp_path)

@@ -11,9 +11,11 @@ Layout on disk (documented in docs/diagnosis.md)::
                                       the images cover (default: a DIGIT's 18 x 24)
 
 The diagnosis works on square S x S images over that view (pixels are then not square in
-mm, as ``GelSpec`` has them). Square frames are used at their own size; frames of another
-shape (a DIGIT's 240 x 320, a GelSight's 4:3) are area-resized to S x S, as the
-Tactile-Diffusion code resizes its frames, and so is every frame when ``size`` is given.
+mm, as ``GelSpec`` has them). Each part's frames (depth, sim, real) share one size, and the
+no-contact frames their side's. Frames that are all one square size are used as they are;
+otherwise (a DIGIT's 240 x 320, a GelSight's 4:3, a renderer at another size than the
+camera) each is resized on its own to S x S, as the Tactile-Diffusion code resizes its
+frames and masks, and so is every frame when ``size`` is given.
 
 ``<label>/`` may be absent (unlabelled data: files directly under depth/, sim/, real/).
 Labels that are not safe folder names are encoded (``label_to_dir``): ``#`` is written as
@@ -270,16 +272,18 @@ def detect_layout(root: str | os.PathLike) -> tuple[str, Path]:
     )
 
 
-def working_side(frame: tuple[int, int], size: int | None) -> int | None:
-    """The side S the diagnosis resizes (w, h) frames to; None keeps square frames as they
-    are. Other frames go to ``min(64, shorter side)`` unless ``size`` says otherwise."""
+def working_side(frames: Sequence[tuple[int, int]], size: int | None) -> int | None:
+    """The side S the diagnosis resizes frames of sizes ``frames`` (w, h) to; None keeps
+    frames that are all one square size as they are. Otherwise ``size``, or
+    ``min(64, shortest side)``."""
     if size is not None:
         return size
-    w, h = frame
-    return None if w == h else min(DEFAULT_SIDE, w, h)
+    if len(set(frames)) == 1 and frames[0][0] == frames[0][1]:
+        return None
+    return min(DEFAULT_SIDE, *(min(f) for f in frames))
 
 
-def _check_aspect(root: Path, frame: tuple[int, int], gel: tuple[float, float]) -> None:
+def _check_aspect(path: Path, frame: tuple[int, int], gel: tuple[float, float]) -> None:
     """A non-square frame shows the gel view in its own proportions (square camera pixels);
     one that does not is a gel.json for another sensor, or a frame turned a quarter."""
     w, h = frame
@@ -287,13 +291,24 @@ def _check_aspect(root: Path, frame: tuple[int, int], gel: tuple[float, float]) 
         return  # the layout's convention: a square image covers the whole view
     if abs(math.log((w / h) / (gel[0] / gel[1]))) > MAX_ASPECT_LOG_RATIO:
         raise TactileBenchError(
-            f"{root}: frames are {w} x {h} (width x height) but the gel view is {gel[0]:g} x "
+            f"{path}: is {w} x {h} (width x height) but the gel view is {gel[0]:g} x "
             f"{gel[1]:g} mm ({GEL_FILE} or a DIGIT's default); their proportions differ: "
             f"give {GEL_FILE} the view the frames show"
         )
 
 
+def _frame_sizes(root: Path, firsts: dict[str, Path]) -> dict[str, tuple[int, int]]:
+    """Each part's frame size from its first file's header (no pixel decoded)."""
+    sizes = {}
+    for part, path in firsts.items():
+        with open_header(path) as im:
+            sizes[part] = _check_size(path, im, None)
+    return sizes
+
+
 def _load_layout(root: Path, size: int | None = None) -> PairedData:
+    """The paired layout. Each part's frames share one size; the parts may differ (a
+    renderer's 120 x 160 beside a camera's 240 x 320): each frame is resized on its own."""
     listings = {part: _listing(root / part) for part in PARTS}
     depth_files = listings["depth"]
     if not depth_files:
@@ -309,30 +324,32 @@ def _load_layout(root: Path, size: int | None = None) -> PairedData:
                 raise TactileBenchError(
                     f"{root / part / key}: unpaired (no {root / 'depth' / key})"
                 )
-    first = next(iter(depth_files.values()))[1]
-    with open_header(first) as im:
-        frame = _check_size(first, im, None)
+    first_key = next(iter(depth_files))
+    frames = _frame_sizes(root, {p: root / p / first_key for p in PARTS})
     gel = read_gel(root)
-    _check_aspect(root, frame, gel)
-    side = working_side(frame, size)
-    kept = frame if side is None else (side, side)  # each frame is resized as it is read
-    check_memory(  # from the first header, before decoding any pixel
+    for part in PARTS:
+        _check_aspect(root / part / first_key, frames[part], gel)
+    side = working_side(list(frames.values()), size)
+    kept = frames["real"] if side is None else (side, side)  # resized as each is read
+    check_memory(  # from the headers, before decoding any pixel
         str(root),
         f"{len(depth_files)} pairs of {kept[0]} x {kept[1]} pixels",
         float(len(depth_files)) * kept[0] * kept[1] * BYTES_PER_PAIR_PIXEL,
     )
-    if side is not None and frame != kept:
-        log.info("%s: %d x %d frames area-resized to %d x %d", root, *frame, side, side)
+    if side is not None:
+        shown = ", ".join(f"{p} {w} x {h}" for p, (w, h) in frames.items())
+        log.info("%s: frames (%s) resized to %d x %d", root, shown, side, side)
     depth, sim, real, labels, names = [], [], [], [], []
     for key, (label, path) in depth_files.items():
-        depth.append(read_depth(path, frame, side))
-        sim.append(read_rgb(root / "sim" / key, frame, side))
-        real.append(read_rgb(root / "real" / key, frame, side))
+        depth.append(read_depth(path, frames["depth"], side))
+        sim.append(read_rgb(root / "sim" / key, frames["sim"], side))
+        real.append(read_rgb(root / "real" / key, frames["real"], side))
         labels.append(label)
         names.append(path.stem)
-    background = read_rgb(root / "background.png", frame, side)
+    # a no-contact frame is a frame of its side's camera: the same size as that side's
+    background = read_rgb(root / "background.png", frames["real"], side)
     sim_bg_path = root / "sim_background.png"
-    sim_bg = read_rgb(sim_bg_path, frame, side) if sim_bg_path.exists() else None
+    sim_bg = read_rgb(sim_bg_path, frames["sim"], side) if sim_bg_path.exists() else None
     return PairedData(
         torch.stack(depth),
         torch.stack(sim),
