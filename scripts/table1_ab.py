@@ -8,6 +8,9 @@ a condition (mean and per-seed accuracy on the real classifier test set):
     python scripts/table1_ab.py cgan_lowpass RUN_DIR  # ... with fine detail removed both sides
     python scripts/table1_ab.py cgan_noise RUN_DIR    # ... with the diffusion's camera noise added
     python scripts/table1_ab.py cgan_bands RUN_DIR    # ... coarse / fine detail swapped with real's
+    python scripts/table1_ab.py cgan_three_bands RUN_DIR  # ... its middle or coarse band alone
+    python scripts/table1_ab.py cgan_coarse_gain RUN_DIR  # ... its coarse band: strength or shape
+    python scripts/table1_ab.py cgan_coarse_where RUN_DIR # where that band departs from real's
     python scripts/table1_ab.py rotated RUN_DIR    # every row's models on the yaw-to-90 test set
     python scripts/table1_ab.py legibility RUN_DIR # every row's models on each translator's
                                                    # rendering of the classifier test contacts
@@ -279,6 +282,93 @@ def cgan_bands(run: Path, out: Path, sigma_px: float = 1.0) -> None:
         _train_and_score(name, (images, labels), test, pool_fg, out)
 
 
+def cgan_three_bands(run: Path, out: Path, fine_px: float = 1.0, coarse_px: float = 4.0) -> None:
+    """cGAN row with one of three bands of its images in real frames otherwise: the middle
+    band (detail between Gaussian sigma ``fine_px`` and ``coarse_px``: the dots' shape and
+    place) or the coarse band (beyond ``coarse_px``: shading across the view, colour casts).
+    Real's fine band in both, so the cGAN's fine-detail pattern is out of play."""
+    (fg, labels), test, pool_fg = _cgan_inputs(run)
+    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
+    if not torch.equal(classifier_set.labels, labels):
+        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    real_fg = classifier_set.foreground("real")
+
+    def bands(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        low_fine, low_coarse = _low_pass(x, fine_px), _low_pass(x, coarse_px)
+        return x - low_fine, low_fine - low_coarse, low_coarse
+
+    (_, cgan_mid, cgan_coarse), (real_fine, real_mid, real_coarse) = bands(fg), bands(real_fg)
+    at = f"(split at sigma {fine_px} / {coarse_px} px)"
+    conditions = {
+        f"real's fine + cGAN's middle + real's coarse {at}": real_fine + cgan_mid + real_coarse,
+        f"real's fine + real's middle + cGAN's coarse {at}": real_fine + real_mid + cgan_coarse,
+    }
+    for name, images in conditions.items():
+        _train_and_score(name, (images, labels), test, pool_fg, out)
+
+
+def cgan_coarse_gain(run: Path, out: Path, coarse_px: float = 4.0) -> None:
+    """Is the cGAN's coarse band (beyond Gaussian sigma ``coarse_px``) wrong in strength or
+    in shape? Its departure from the no-contact level is weaker than real's (RMS ratio k,
+    measured here). Real frames with their coarse band scaled by k, and real's fine and
+    middle bands over the cGAN's coarse band scaled by 1 / k: if strength is the cue, the
+    first fails as the cGAN's coarse band does and the second recovers."""
+    (fg, labels), test, pool_fg = _cgan_inputs(run)
+    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
+    if not torch.equal(classifier_set.labels, labels):
+        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    real_fg = classifier_set.foreground("real")
+    level = 0.5  # a foreground's no-contact level (image - background + 0.5)
+    cgan_coarse = _low_pass(fg, coarse_px) - level
+    del fg
+    real_coarse = _low_pass(real_fg, coarse_px) - level
+    real_detail = real_fg - level - real_coarse
+    del real_fg
+    k = float(cgan_coarse.pow(2).mean().sqrt() / real_coarse.pow(2).mean().sqrt())
+    print(json.dumps({"coarse_rms_ratio_cgan_to_real": round(k, 4)}))
+    conditions = {
+        f"real, its coarse band (sigma {coarse_px} px) scaled by k = {k:.3f}": (
+            lambda: level + real_detail + k * real_coarse
+        ),
+        f"real's finer bands + cGAN's coarse band scaled by 1 / k (sigma {coarse_px} px)": (
+            lambda: level + real_detail + cgan_coarse / k
+        ),
+    }
+    for name, images in conditions.items():
+        _train_and_score(name, (images(), labels), test, pool_fg, out)
+
+
+def cgan_coarse_where(run: Path, coarse_px: float = 4.0, n: int = 2000) -> None:
+    """Measurements only, on the first ``n`` classifier images: where the cGAN's coarse band
+    (beyond Gaussian sigma ``coarse_px``) departs from real's (within 4 px of the contact or
+    away from it), and how much of that the best whole-pixel shift of each image (within
+    3 px) removes, i.e. how much of it is a misregistration."""
+    (fg, labels), _, _ = _cgan_inputs(run)
+    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
+    fg, real = fg[:n], classifier_set.foreground("real")[:n]
+    cgan_coarse, real_coarse = _low_pass(fg, coarse_px), _low_pass(real, coarse_px)
+    diff = (cgan_coarse - real_coarse) * 255
+    near = F.max_pool2d((classifier_set.depth[:n] > 0).float(), 9, 1, 4) > 0
+    near = near.expand(-1, 3, -1, -1)
+    grey_cgan, grey_real = cgan_coarse.mean(1, keepdim=True), real_coarse.mean(1, keepdim=True)
+    shifts = [(dy, dx) for dy in range(-3, 4) for dx in range(-3, 4)]
+    errors = torch.stack(
+        [(torch.roll(grey_cgan, s, (2, 3)) - grey_real).pow(2).mean(dim=(1, 2, 3)) for s in shifts],
+        1,
+    )
+    unshifted = errors[:, shifts.index((0, 0))].mean()
+    row = {
+        "coarse_diff_rms_near_contact": float(diff[near].pow(2).mean().sqrt()),
+        "coarse_diff_rms_away": float(diff[~near].pow(2).mean().sqrt()),
+        "share_of_pixels_near": float(near.float().mean()),
+        "best_shift_lowers_squared_diff_by": float(1 - errors.min(1).values.mean() / unshifted),
+        "share_of_images_best_unshifted": float(
+            (errors.argmin(1) == shifts.index((0, 0))).float().mean()
+        ),
+    }
+    print(json.dumps({k: round(v, 4) for k, v in row.items()}))
+
+
 def cgan_noise(run: Path, out: Path) -> None:
     """cGAN row with camera noise drawn into its training images as the diffusion translator
     draws it into its samples (per channel, the level ``estimate_pixel_noise`` measures on
@@ -444,6 +534,9 @@ def main() -> None:
             "cgan_lowpass",
             "cgan_noise",
             "cgan_bands",
+            "cgan_three_bands",
+            "cgan_coarse_gain",
+            "cgan_coarse_where",
             "rotated",
             "legibility",
             "ssim",
@@ -456,6 +549,12 @@ def main() -> None:
     parser.add_argument(
         "--sigma", type=float, default=1.0, help="band split, Gaussian px (cgan_lowpass/_bands)"
     )
+    parser.add_argument(
+        "--coarse",
+        type=float,
+        default=4.0,
+        help="coarse split, px (cgan_three_bands, _coarse_gain)",
+    )
     ns = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out = ns.out or Path(tmp)
@@ -465,6 +564,9 @@ def main() -> None:
             "cgan_lowpass": lambda: cgan_lowpass(ns.run_dir, out, ns.sigma),
             "cgan_noise": lambda: cgan_noise(ns.run_dir, out),
             "cgan_bands": lambda: cgan_bands(ns.run_dir, out, ns.sigma),
+            "cgan_three_bands": lambda: cgan_three_bands(ns.run_dir, out, ns.sigma, ns.coarse),
+            "cgan_coarse_gain": lambda: cgan_coarse_gain(ns.run_dir, out, ns.coarse),
+            "cgan_coarse_where": lambda: cgan_coarse_where(ns.run_dir, ns.coarse),
             "rotated": lambda: rotated(ns.run_dir),
             "legibility": lambda: legibility(ns.run_dir),
             "ssim": lambda: ssim(ns.run_dir),
