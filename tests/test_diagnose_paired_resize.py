@@ -51,9 +51,15 @@ def test_a_digit_frame_is_area_resized_to_a_square(tmp_path: Path) -> None:
 
 def test_size_resizes_square_frames_too(tmp_path: Path) -> None:
     _write_layout(tmp_path, 64, 64)
-    assert load_paired(tmp_path).size == 64  # square frames are kept as they are
+    assert load_paired(tmp_path).size == 64  # square frames up to 64 are kept as they are
     assert load_paired(tmp_path, size=32).size == 32
     assert load_paired(tmp_path, size=80).size == 80  # larger: bilinear
+
+
+def test_square_frames_above_64_come_down_to_the_validated_size(tmp_path: Path) -> None:
+    _write_layout(tmp_path, 96, 96)
+    assert load_paired(tmp_path).size == 64
+    assert load_paired(tmp_path, size=96).size == 96
 
 
 def test_a_frame_across_the_gel_view_is_one_line_naming_gel_json(tmp_path: Path) -> None:

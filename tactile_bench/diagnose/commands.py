@@ -304,8 +304,8 @@ def _add_diagnose(subparsers: Any) -> None:
         "--size",
         type=int,
         metavar="S",
-        help="resize every frame to S x S (default: square frames as they are, others to "
-        "min(64, shorter side); the Tactile-Diffusion layout to 64)",
+        help="resize every frame to S x S (default: min(64, shortest side), the size the "
+        "diagnosis is validated at; the Tactile-Diffusion layout: 64)",
     )
     diag.add_argument("--no-progress", action="store_true")
     diag.set_defaults(func=_cmd_diagnose)

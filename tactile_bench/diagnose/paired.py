@@ -12,10 +12,9 @@ Layout on disk (documented in docs/diagnosis.md)::
 
 The diagnosis works on square S x S images over that view (pixels are then not square in
 mm, as ``GelSpec`` has them). Each part's frames (depth, sim, real) share one size, and the
-no-contact frames their side's. Frames that are all one square size are used as they are;
-otherwise (a DIGIT's 240 x 320, a GelSight's 4:3, a renderer at another size than the
-camera) each is resized on its own to S x S, as the Tactile-Diffusion code resizes its
-frames and masks, and so is every frame when ``size`` is given.
+no-contact frames their side's. Each frame is resized on its own to S x S, as the
+Tactile-Diffusion code resizes its frames and masks: S = ``size``, or min(64, shortest
+side), so frames that are all one square size up to 64 are used as they are.
 
 ``<label>/`` may be absent (unlabelled data: files directly under depth/, sim/, real/).
 Labels that are not safe folder names are encoded (``label_to_dir``): ``#`` is written as
@@ -273,14 +272,13 @@ def detect_layout(root: str | os.PathLike) -> tuple[str, Path]:
 
 
 def working_side(frames: Sequence[tuple[int, int]], size: int | None) -> int | None:
-    """The side S the diagnosis resizes frames of sizes ``frames`` (w, h) to; None keeps
-    frames that are all one square size as they are. Otherwise ``size``, or
-    ``min(64, shortest side)``."""
+    """The side S the diagnosis resizes frames of sizes ``frames`` (w, h) to: ``size`` if
+    given, else ``min(64, shortest side)`` (64: the paper's size, the one the diagnosis is
+    validated at); None when the frames are already all one square size no larger."""
     if size is not None:
         return size
-    if len(set(frames)) == 1 and frames[0][0] == frames[0][1]:
-        return None
-    return min(DEFAULT_SIDE, *(min(f) for f in frames))
+    side = min(DEFAULT_SIDE, *(min(f) for f in frames))
+    return None if set(frames) == {(side, side)} else side
 
 
 def _check_aspect(path: Path, frame: tuple[int, int], gel: tuple[float, float]) -> None:
