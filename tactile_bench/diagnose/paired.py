@@ -51,7 +51,7 @@ from tactile_bench.data.pairs import PairSet
 from tactile_bench.data.pixels import to_uint8
 from tactile_bench.data.tactile_diffusion import braille_root
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL
+from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL, MAX_SIZE, MIN_SIZE
 from tactile_bench.guard.images import MIN_SIDE, open_header
 from tactile_bench.guard.limits import check_memory
 
@@ -70,7 +70,6 @@ MAX_GEL_MM = 500.0
 #: GelSight's a few mm; 65 mm is a unit mistake (mm written where micrometres belong)
 MAX_PENETRATION_MM = 5.0
 DEFAULT_SIDE = 64  # the paper's image size: frames of other shapes are resized to at most it
-MAX_SIDE = 1024
 #: |log| of the ratio of a frame's proportions to the gel view's above which they disagree:
 #: 10%, more than a cropped border, far less than a 3:4 frame turned a quarter (78%)
 MAX_ASPECT_LOG_RATIO = math.log(1.1)
@@ -430,8 +429,8 @@ def load_paired(root: str | os.PathLike, size: int | None = None) -> PairedData:
     """Read ``root`` in the paired layout or the Tactile-Diffusion braille layout, as
     ``size`` x ``size`` images (``working_side`` for the paired layout when None; the
     Tactile-Diffusion frames are area-resized to 64 then, like the paper's)."""
-    if size is not None and not MIN_SIDE <= size <= MAX_SIDE:
-        raise TactileBenchError(f"--size {size}: must be in {MIN_SIDE}..{MAX_SIDE} pixels")
+    if size is not None and not MIN_SIZE <= size <= MAX_SIZE:  # the CLI's bounds
+        raise TactileBenchError(f"--size: must be between {MIN_SIZE} and {MAX_SIZE}, got {size}")
     layout, base = detect_layout(root)
     if layout == "tactile_diffusion":
         return _load_tactile_diffusion(base, size or DEFAULT_SIDE)
