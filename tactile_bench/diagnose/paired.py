@@ -69,7 +69,7 @@ MAX_GEL_MM = 500.0
 #: the deepest penetration a depth image may hold: a DIGIT's gel is about 2 mm thick, a
 #: GelSight's a few mm; 65 mm is a unit mistake (mm written where micrometres belong)
 MAX_PENETRATION_MM = 5.0
-DEFAULT_SIDE = 64  # the paper's image size: frames of other shapes are resized to at most it
+DEFAULT_SIDE = 64  # the paper's image size, the one the diagnosis is validated at
 #: |log| of the ratio of a frame's proportions to the gel view's above which they disagree:
 #: 10%, more than a cropped border, far less than a 3:4 frame turned a quarter (78%)
 MAX_ASPECT_LOG_RATIO = math.log(1.1)
