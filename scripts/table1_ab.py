@@ -11,6 +11,8 @@ a condition (mean and per-seed accuracy on the real classifier test set):
     python scripts/table1_ab.py cgan_three_bands RUN_DIR  # ... its middle or coarse band alone
     python scripts/table1_ab.py cgan_coarse_gain RUN_DIR  # ... its coarse band: strength or shape
     python scripts/table1_ab.py cgan_coarse_where RUN_DIR # where that band departs from real's
+    python scripts/table1_ab.py cgan_coarse_place RUN_DIR # ... that band near / away from contacts
+    python scripts/table1_ab.py cgan_mean_colour RUN_DIR  # ... its per-image mean colour offset
     python scripts/table1_ab.py rotated RUN_DIR    # every row's models on the yaw-to-90 test set
     python scripts/table1_ab.py legibility RUN_DIR # every row's models on each translator's
                                                    # rendering of the classifier test contacts
@@ -369,6 +371,44 @@ def cgan_coarse_where(run: Path, coarse_px: float = 4.0, n: int = 2000) -> None:
     print(json.dumps({k: round(v, 4) for k, v in row.items()}))
 
 
+def cgan_coarse_place(run: Path, out: Path, coarse_px: float = 4.0) -> None:
+    """Where the cGAN's coarse cue sits: real frames with the cGAN's coarse band (beyond
+    Gaussian sigma ``coarse_px``) put in place of real's only within 4 px of the contact,
+    and only away from it (a hard mask; the two conditions add up to the whole band)."""
+    (fg, labels), test, pool_fg = _cgan_inputs(run)
+    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
+    if not torch.equal(classifier_set.labels, labels):
+        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    real_fg = classifier_set.foreground("real")
+    swap = _low_pass(fg, coarse_px) - _low_pass(real_fg, coarse_px)
+    del fg
+    near = F.max_pool2d((classifier_set.depth > 0).float(), 9, 1, 4) > 0
+    conditions = {
+        f"real + the cGAN's coarse band (sigma {coarse_px} px) within 4 px of the contact": near,
+        f"real + the cGAN's coarse band (sigma {coarse_px} px) away from the contact": ~near,
+    }
+    for name, where in conditions.items():
+        _train_and_score(name, (real_fg + swap * where, labels), test, pool_fg, out)
+
+
+def cgan_mean_colour(run: Path, out: Path) -> None:
+    """Real frames shifted by the cGAN's per-image mean colour offset (its image's mean over
+    the view, channel by channel, less real's): whether the coarse cue away from the
+    contact is a global colour offset that follows the character."""
+    (fg, labels), test, pool_fg = _cgan_inputs(run)
+    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
+    if not torch.equal(classifier_set.labels, labels):
+        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    real_fg = classifier_set.foreground("real")
+    offset = fg.mean(dim=(2, 3), keepdim=True) - real_fg.mean(dim=(2, 3), keepdim=True)
+    del fg
+    print(
+        json.dumps({"offset_rms_grey_levels": round(float(offset.pow(2).mean().sqrt() * 255), 3)})
+    )
+    name = "real + the cGAN's per-image mean colour offset"
+    _train_and_score(name, (real_fg + offset, labels), test, pool_fg, out)
+
+
 def cgan_noise(run: Path, out: Path) -> None:
     """cGAN row with camera noise drawn into its training images as the diffusion translator
     draws it into its samples (per channel, the level ``estimate_pixel_noise`` measures on
@@ -537,6 +577,8 @@ def main() -> None:
             "cgan_three_bands",
             "cgan_coarse_gain",
             "cgan_coarse_where",
+            "cgan_coarse_place",
+            "cgan_mean_colour",
             "rotated",
             "legibility",
             "ssim",
@@ -567,6 +609,8 @@ def main() -> None:
             "cgan_three_bands": lambda: cgan_three_bands(ns.run_dir, out, ns.sigma, ns.coarse),
             "cgan_coarse_gain": lambda: cgan_coarse_gain(ns.run_dir, out, ns.coarse),
             "cgan_coarse_where": lambda: cgan_coarse_where(ns.run_dir, ns.coarse),
+            "cgan_coarse_place": lambda: cgan_coarse_place(ns.run_dir, out, ns.coarse),
+            "cgan_mean_colour": lambda: cgan_mean_colour(ns.run_dir, out),
             "rotated": lambda: rotated(ns.run_dir),
             "legibility": lambda: legibility(ns.run_dir),
             "ssim": lambda: ssim(ns.run_dir),
