@@ -205,6 +205,18 @@ def cgan(run: Path, out: Path) -> None:
         _train_and_score(name, (change(fg), labels), test, pool_fg, out)
 
 
+def _base_classifier(
+    fg: torch.Tensor, labels: torch.Tensor, seed: int, folder: Path
+) -> torch.nn.Module:
+    """The A/B protocol's base classifier (table1.yaml's, 4 epochs) trained on ``fg``."""
+    cfg = ClassifierConfig(
+        width=16, blocks=(1, 1, 1, 1), batch_size=64, lr=0.002, epochs=4, seed=seed
+    )
+    return train_classifier(
+        fg, labels, cfg, folder, loggers=[], trainer_kwargs=QUIET, num_classes=N_CLASSES
+    )
+
+
 def _train_and_score(
     name: str,
     train: tuple[torch.Tensor, torch.Tensor],
@@ -218,18 +230,7 @@ def _train_and_score(
     accs, adapted = [], []
     for seed in SEEDS:
         keep, _ = stratified_split(labels, 0.1, seed)
-        cfg = ClassifierConfig(
-            width=16, blocks=(1, 1, 1, 1), batch_size=64, lr=0.002, epochs=4, seed=seed
-        )
-        model = train_classifier(
-            train_fg[keep],
-            labels[keep],
-            cfg,
-            out / f"{name}_seed{seed}",
-            loggers=[],
-            trainer_kwargs=QUIET,
-            num_classes=N_CLASSES,
-        )
+        model = _base_classifier(train_fg[keep], labels[keep], seed, out / f"{name}_seed{seed}")
         accs.append(_accuracy(model, test_fg, test_labels))
         # BatchNorm statistics from unlabeled real frames (the fine-tuning pool): how much
         # of the failure is a shift of feature statistics
@@ -243,6 +244,20 @@ def _low_pass(x: torch.Tensor, sigma_px: float) -> torch.Tensor:
     """What is coarser than a Gaussian of ``sigma_px`` (kernel to 3 sigma): the coarse band."""
     radius = int(math.ceil(3 * sigma_px))
     return gaussian_blur2d(x, (2 * radius + 1,) * 2, (sigma_px, sigma_px), "reflect")
+
+
+def _classifier_set_in_order(run: Path, labels: torch.Tensor) -> BrailleSet:
+    """The braille stage's classifier set, whose real frames pair image by image with the
+    cGAN's translations of it (checked by their labels)."""
+    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
+    if not torch.equal(classifier_set.labels, labels):
+        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    return classifier_set
+
+
+def _near_contact(depth: torch.Tensor, px: int = 4) -> torch.Tensor:
+    """(N, 1, H, W) True within ``px`` pixels of a pressed pixel."""
+    return F.max_pool2d((depth > 0).float(), 2 * px + 1, 1, px) > 0
 
 
 def cgan_lowpass(run: Path, out: Path, sigma_px: float = 1.0) -> None:
@@ -269,9 +284,7 @@ def cgan_bands(run: Path, out: Path, sigma_px: float = 1.0) -> None:
     condition keeps one band of the cGAN image and takes the other from real (Gaussian
     sigma_px split); the test set is real, unchanged."""
     (fg, labels), test, pool_fg = _cgan_inputs(run)
-    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
-    if not torch.equal(classifier_set.labels, labels):
-        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    classifier_set = _classifier_set_in_order(run, labels)
     real_fg = classifier_set.foreground("real")
 
     cgan_low, real_low = _low_pass(fg, sigma_px), _low_pass(real_fg, sigma_px)
@@ -291,9 +304,7 @@ def cgan_three_bands(run: Path, out: Path, fine_px: float = 1.0, coarse_px: floa
     place) or the coarse band (beyond ``coarse_px``: shading across the view, colour casts).
     Real's fine band in both, so the cGAN's fine-detail pattern is out of play."""
     (fg, labels), test, pool_fg = _cgan_inputs(run)
-    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
-    if not torch.equal(classifier_set.labels, labels):
-        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    classifier_set = _classifier_set_in_order(run, labels)
     real_fg = classifier_set.foreground("real")
 
     def bands(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -317,9 +328,7 @@ def cgan_coarse_gain(run: Path, out: Path, coarse_px: float = 4.0) -> None:
     middle bands over the cGAN's coarse band scaled by 1 / k: if strength is the cue, the
     first fails as the cGAN's coarse band does and the second recovers."""
     (fg, labels), test, pool_fg = _cgan_inputs(run)
-    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
-    if not torch.equal(classifier_set.labels, labels):
-        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    classifier_set = _classifier_set_in_order(run, labels)
     real_fg = classifier_set.foreground("real")
     level = 0.5  # a foreground's no-contact level (image - background + 0.5)
     cgan_coarse = _low_pass(fg, coarse_px) - level
@@ -351,7 +360,7 @@ def cgan_coarse_where(run: Path, coarse_px: float = 4.0, n: int = 2000) -> None:
     fg, real = fg[:n], classifier_set.foreground("real")[:n]
     cgan_coarse, real_coarse = _low_pass(fg, coarse_px), _low_pass(real, coarse_px)
     diff = (cgan_coarse - real_coarse) * 255
-    near = F.max_pool2d((classifier_set.depth[:n] > 0).float(), 9, 1, 4) > 0
+    near = _near_contact(classifier_set.depth[:n])
     near = near.expand(-1, 3, -1, -1)
     grey_cgan, grey_real = cgan_coarse.mean(1, keepdim=True), real_coarse.mean(1, keepdim=True)
     shifts = [(dy, dx) for dy in range(-3, 4) for dx in range(-3, 4)]
@@ -377,13 +386,11 @@ def cgan_coarse_place(run: Path, out: Path, coarse_px: float = 4.0) -> None:
     Gaussian sigma ``coarse_px``) put in place of real's only within 4 px of the contact,
     and only away from it (a hard mask; the two conditions add up to the whole band)."""
     (fg, labels), test, pool_fg = _cgan_inputs(run)
-    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
-    if not torch.equal(classifier_set.labels, labels):
-        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    classifier_set = _classifier_set_in_order(run, labels)
     real_fg = classifier_set.foreground("real")
     swap = _low_pass(fg, coarse_px) - _low_pass(real_fg, coarse_px)
     del fg
-    near = F.max_pool2d((classifier_set.depth > 0).float(), 9, 1, 4) > 0
+    near = _near_contact(classifier_set.depth)
     conditions = {
         f"real + the cGAN's coarse band (sigma {coarse_px} px) within 4 px of the contact": near,
         f"real + the cGAN's coarse band (sigma {coarse_px} px) away from the contact": ~near,
@@ -399,12 +406,10 @@ def cgan_away_pattern(run: Path, out: Path, coarse_px: float = 4.0) -> None:
     masked-out neighbourhood of the contact outlines the character by itself, so the
     control keeps the mask and replaces the difference by its mean over the masked part."""
     (fg, labels), _, _ = _cgan_inputs(run)
-    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
-    if not torch.equal(classifier_set.labels, labels):
-        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    classifier_set = _classifier_set_in_order(run, labels)
     swap = _low_pass(fg, coarse_px) - _low_pass(classifier_set.foreground("real"), coarse_px)
     del fg
-    away = (F.max_pool2d((classifier_set.depth > 0).float(), 9, 1, 4) == 0).float()
+    away = (~_near_contact(classifier_set.depth)).float()
     level = (swap * away).sum(dim=(2, 3), keepdim=True) / away.sum(dim=(2, 3), keepdim=True)
     conditions = {
         "the character read from the cGAN's coarse difference away from the contact": 0.5
@@ -415,18 +420,8 @@ def cgan_away_pattern(run: Path, out: Path, coarse_px: float = 4.0) -> None:
         accs = []
         for seed in SEEDS:
             keep, held = stratified_split(labels, 0.2, seed)
-            cfg = ClassifierConfig(
-                width=16, blocks=(1, 1, 1, 1), batch_size=64, lr=0.002, epochs=4, seed=seed
-            )
-            model = train_classifier(
-                pattern[keep],
-                labels[keep],
-                cfg,
-                out / f"away_pattern_seed{seed}",
-                loggers=[],
-                trainer_kwargs=QUIET,
-                num_classes=N_CLASSES,
-            )
+            folder = out / f"away_pattern_seed{seed}"
+            model = _base_classifier(pattern[keep], labels[keep], seed, folder)
             accs.append(_accuracy(model, pattern[held], labels[held]))
         _report(name, accs)
 
@@ -436,9 +431,7 @@ def cgan_mean_colour(run: Path, out: Path) -> None:
     the view, channel by channel, less real's): whether the coarse cue away from the
     contact is a global colour offset that follows the character."""
     (fg, labels), test, pool_fg = _cgan_inputs(run)
-    classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
-    if not torch.equal(classifier_set.labels, labels):
-        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+    classifier_set = _classifier_set_in_order(run, labels)
     real_fg = classifier_set.foreground("real")
     offset = fg.mean(dim=(2, 3), keepdim=True) - real_fg.mean(dim=(2, 3), keepdim=True)
     del fg
