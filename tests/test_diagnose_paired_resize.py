@@ -53,7 +53,7 @@ def test_size_resizes_square_frames_too(tmp_path: Path) -> None:
     _write_layout(tmp_path, 64, 64)
     assert load_paired(tmp_path).size == 64  # square frames up to 64 are kept as they are
     assert load_paired(tmp_path, size=32).size == 32
-    assert load_paired(tmp_path, size=80).size == 80  # larger: bilinear
+    assert load_paired(tmp_path, size=80).size == 80  # larger: the box filter too
 
 
 def test_square_frames_above_64_come_down_to_the_validated_size(tmp_path: Path) -> None:

@@ -122,6 +122,15 @@ def _note_mode(path: Path, im: Image.Image) -> None:
     )
 
 
+def area_resized(im: Image.Image, size: int | None) -> Image.Image:
+    """``im`` as ``size`` x ``size`` by Pillow's box filter, cv2's INTER_AREA: each new pixel
+    the mean of the old ones it covers, as a coarser camera pixel integrates their light
+    (unchanged for ``size`` None or a frame already that size)."""
+    if size is None or im.size == (size, size):
+        return im
+    return im.resize((size, size), Image.Resampling.BOX)
+
+
 def read_image(path: Path, size: int | None = None, same: SameSize | None = None) -> torch.Tensor:
     """(3, S, S) uint8 RGB of a colour frame as ``cv2.imread`` reads it, area-resized to
     ``size`` (cv2 INTER_AREA)."""
@@ -129,9 +138,7 @@ def read_image(path: Path, size: int | None = None, same: SameSize | None = None
     if same is not None:
         same.check(Path(path), im.size)
     _note_mode(Path(path), im)
-    im = as_imread_colour(im, Path(path))
-    if size is not None:
-        im = im.resize((size, size), Image.Resampling.BOX)
+    im = area_resized(as_imread_colour(im, Path(path)), size)
     return torch.from_numpy(np.asarray(im, dtype=np.uint8).copy()).permute(2, 0, 1)
 
 
@@ -158,9 +165,7 @@ def read_gray(path: Path, size: int | None = None, same: SameSize | None = None)
         )
     if same is not None:
         same.check(Path(path), im.size)
-    if size is not None:
-        im = im.resize((size, size), Image.Resampling.BOX)
-    return np.asarray(im, dtype=np.float64)
+    return np.asarray(area_resized(im, size), dtype=np.float64)
 
 
 #: cv2's COLOR_RGB2GRAY weights. dataio_braille.py applies it to what cv2.imread gives (B, G, R

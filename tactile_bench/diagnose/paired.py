@@ -46,6 +46,7 @@ import numpy as np
 import torch
 from PIL import Image, UnidentifiedImageError
 
+from tactile_bench.data.images import area_resized
 from tactile_bench.data.paired import Pairs
 from tactile_bench.data.pairs import PairSet
 from tactile_bench.data.pixels import to_uint8
@@ -153,17 +154,6 @@ def _check_size(path: Path, im: Image.Image, size: tuple[int, int] | None) -> tu
     return w, h
 
 
-def resized(im: Image.Image, side: int | None) -> Image.Image:
-    """``im`` as side x side: a box filter when shrinking (each new pixel the area-weighted
-    mean of the old ones it covers, as a coarser camera pixel integrates their light),
-    bilinear when growing; unchanged for ``side`` None or a frame already that size."""
-    if side is None or im.size == (side, side):
-        return im
-    shrink = side <= min(im.size)
-    how = Image.Resampling.BOX if shrink else Image.Resampling.BILINEAR
-    return im.resize((side, side), how)
-
-
 def read_rgb(
     path: Path, size: tuple[int, int] | None = None, side: int | None = None
 ) -> torch.Tensor:
@@ -178,7 +168,7 @@ def read_rgb(
             f"{path}: has {bands} channel(s) (mode {im.mode}); expected 8-bit RGB (3 channels)"
         )
     _check_size(path, im, size)
-    im = resized(im, side)  # 8-bit RGB in, 8-bit out: rounded as a stored frame is
+    im = area_resized(im, side)  # 8-bit RGB in, 8-bit out: rounded as a stored frame is
     return torch.from_numpy(np.asarray(im, dtype=np.uint8).copy()).permute(2, 0, 1).float()
 
 
@@ -202,7 +192,7 @@ def read_depth(
             f"is a few mm thick (at most {MAX_PENETRATION_MM:g} mm here): wrong unit?"
         )
     if side is not None:  # in 32-bit float, not rounded to whole micrometres
-        arr = np.asarray(resized(Image.fromarray(arr, mode="F"), side), dtype=np.float32)
+        arr = np.asarray(area_resized(Image.fromarray(arr, mode="F"), side), dtype=np.float32)
     return torch.from_numpy(arr / UM_PER_MM)[None]
 
 
