@@ -54,6 +54,10 @@ class _Which:
     residual_flagged: bool
     gap_metric: str = "pixel MSE (stand-in)"
 
+    @property
+    def flagged(self) -> bool:
+        return self.residual_flagged
+
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "ranking": [asdict(f) for f in self.ranking]}
 
@@ -261,6 +265,35 @@ def test_summary_lines_tolerate_any_how_far_fields() -> None:
     }
     text = "\n".join(_summary_lines(report))
     assert "mse 9 -> 4" in text and "real 0.9" in text and "no candidate" in text
+
+
+def test_the_summary_warns_when_the_depth_split_names_another_effect() -> None:
+    from tactile_bench.diagnose.commands import _summary_lines
+
+    stability = {
+        "named_first": "led_diffusivity",
+        "agrees": False,
+        "n_fit": 50,
+        "n_held": 50,
+        "depth_fit_mm": 0.9,
+        "depth_held_mm": 1.1,
+        "accepted": ["optical_response", "elastic_spread"],
+    }
+    report = {
+        "n_pairs": 100,
+        "split": {"n_fit": 50, "n_held": 50},
+        "timing_s": {"total": 1.0},
+        "where": {"mse": 3.0, "dominant": []},
+        "ranking": [],
+        "unexplained": 0.02,
+        "residual_flagged": False,
+        "stability": stability,
+    }
+    text = "\n".join(_summary_lines(report))
+    assert "names led_diffusivity first" in text and "outside the candidates" in text
+    assert "no candidate explains" not in text  # the residual itself is small
+    agreeing = {**report, "stability": {**stability, "agrees": True}}
+    assert "names led_diffusivity" not in "\n".join(_summary_lines(agreeing))
 
 
 def test_first_lines_show_the_background_line_sim_optics_and_confusable_sets() -> None:

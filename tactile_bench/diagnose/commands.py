@@ -54,6 +54,8 @@ def _first_lines(report: dict[str, Any]) -> list[str]:
 
 
 def _summary_lines(report: dict[str, Any]) -> list[str]:
+    from tactile_bench.diagnose.stability import warning as stability_warning
+
     where = report["where"]
     lines = [
         f"diagnosed {report['n_pairs']} pairs ({report['split']['n_fit']} fit / "
@@ -92,6 +94,9 @@ def _summary_lines(report: dict[str, Any]) -> list[str]:
         lines.append(f"  counted above the pairs' own noise (std, grey levels: {sides})")
     if report.get("residual_flagged"):
         lines.append("  note: a large residual remains that no candidate explains")
+    unstable = stability_warning(report.get("stability"))
+    if unstable:
+        lines.append(f"  note: {unstable}")
     far = report.get("how_far") or {}
     pixel = far.get("pixel") or {}
     if pixel:

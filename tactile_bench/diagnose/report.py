@@ -22,6 +22,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 import tactile_bench.report.figures  # noqa: F401  (selects the Agg backend)
+from tactile_bench.diagnose.stability import warning as stability_warning
 from tactile_bench.diagnose.where import WhereResult
 from tactile_bench.io import atomic_write_json, atomic_write_text
 
@@ -280,6 +281,9 @@ def render_html(report: Mapping[str, Any], figures: Mapping[str, str]) -> str:
             "held-out gap) is left after the selected effects and no candidate explains it: "
             "an effect outside the candidate list is likely at work.</p>"
         )
+    unstable = stability_warning(report.get("stability"))
+    if unstable:
+        parts.append(f'<p class="warn">{html.escape(unstable[0].upper() + unstable[1:])}.</p>')
     parts.append("<h2>1. Where the gap lies</h2>")
     parts.append(_table(where["dominant"], ["axis", "part", "share", "intensity"]))
     parts.append(img("error_maps") + img("shares") + img("spectrum"))

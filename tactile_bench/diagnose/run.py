@@ -141,6 +141,8 @@ def _report(
         "singles": [f.to_dict() for f in which.singles],
         "unexplained": which.unexplained,
         "residual_flagged": which.residual_flagged,
+        "stability": which_dict.get("stability"),
+        "flagged": which.flagged,
         "which": {  # anything else the "which" step reports
             k: v
             for k, v in which_dict.items()
@@ -150,6 +152,9 @@ def _report(
                 "singles",
                 "unexplained",
                 "residual_flagged",
+                "stability",
+                "unstable",
+                "flagged",
                 "gap_metric",
                 "background",
                 "background_note",

@@ -241,6 +241,9 @@ def run_case(
         "shrink": round(1 - result.gap_after / result.gap_before, 4) if result.gap_before else 0.0,
         "unexplained": round(result.unexplained, 4),
         "residual_flagged": result.residual_flagged,
+        "depth_split_first": result.stability.named_first if result.stability else None,
+        "unstable": result.unstable,
+        "flagged": result.flagged,
         "pixel": {"before": before, "after": after},
         "seconds": round(seconds, 1),
     }
@@ -250,7 +253,7 @@ def run_case(
     elif case.kind == "double":
         row["passed"] = all(e in selected for e in case.planted)
     else:
-        row["blamed_with_high_confidence"] = bool(selected) and not result.residual_flagged
+        row["blamed_with_high_confidence"] = bool(selected) and not result.flagged
         row["passed"] = not row["blamed_with_high_confidence"]
     return row
 

@@ -46,6 +46,8 @@ from tactile_bench.diagnose.gapfit import (
 )
 from tactile_bench.diagnose.noise import FrameNoise, frame_noise
 from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.stability import Stability
+from tactile_bench.diagnose.stability import check as check_stability
 from tactile_bench.errors import TactileBenchError
 
 MIN_SHARE = 0.02  # a selected effect removes at least this share of the initial gap
@@ -114,12 +116,29 @@ class WhichResult:
     # on a noisy sim: effects that would have been selected only for removing the sim's own
     # frame-to-frame noise (``FrameNoise.topped_up``), set aside
     set_aside_as_denoising: list[str] = field(default_factory=list)
+    # the selection re-run with the shallow presses fitted and the deep ones held out
+    # (``stability.check``); None when not run
+    stability: Stability | None = None
+
+    @property
+    def unstable(self) -> bool:
+        """The depth split names first an effect the selection neither holds nor finds
+        confusable: the explanation depends on which presses were fitted."""
+        return self.stability is not None and not self.stability.agrees
+
+    @property
+    def flagged(self) -> bool:
+        """Some cause outside the candidates is likely: a large residual, or an explanation
+        that changes with the presses it was fitted on."""
+        return self.residual_flagged or self.unstable
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["ranking"] = [r.to_dict() for r in self.ranking]
         d["singles"] = [r.to_dict() for r in self.singles]
         d["background"] = self.background.to_dict() if self.background else None
+        d["stability"] = self.stability.to_dict() if self.stability else None
+        d["unstable"], d["flagged"] = self.unstable, self.flagged
         return d
 
 
@@ -222,9 +241,11 @@ def explain_gap(
     candidates: Sequence[str] | None = None,
     seed: int = 0,
     progress: bool = True,
+    stability: bool = True,
 ) -> WhichResult:
     """Fit every candidate on ``fit_idx``, score it on ``held_idx``, select the set that
-    explains the gap, and report what it leaves unexplained (see the module docstring)."""
+    explains the gap, and report what it leaves unexplained (see the module docstring);
+    ``stability``: also re-run the selection across press depths (``stability.check``)."""
     fit_idx = _check_split(data, fit_idx, "fit")
     held_idx = _check_split(data, held_idx, "held-out")
     names = list(DEFAULT_CANDIDATES if candidates is None else candidates)
@@ -300,6 +321,12 @@ def explain_gap(
         seed,
     )
     result.set_aside_as_denoising = [n for n in dict.fromkeys(set_aside) if n not in selected]
+    if stability:
+
+        def rerun(fit_part: torch.Tensor, held_part: torch.Tensor) -> list[EffectFit]:
+            return explain_gap(data, fit_part, held_part, names, seed, False, False).ranking
+
+        result.stability = check_stability(ranking, data.depth, rerun)
     return result
 
 
