@@ -10,7 +10,9 @@ less the noise's own floor, the part a model can remove) and the lower end of it
 95% CI (held-out pairs resampled) is above zero. With two or more selected, their differentiable
 parameters are refitted jointly. ``unexplained`` is what is left, as a share of the initial
 gap; above ``FLAG_UNEXPLAINED`` the residual is flagged: some cause outside the candidate
-set (or an unfittable one) carries it. The diagnosis reads paired data only.
+set (or an unfittable one) carries it. The selection is then re-run with the shallow presses
+fitted and the deep ones held out (``stability``): an explanation that names another effect
+there is flagged too, however small its residual. The diagnosis reads paired data only.
 """
 
 from __future__ import annotations
