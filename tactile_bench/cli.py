@@ -434,9 +434,6 @@ def _add_list(sub: argparse._SubParsersAction) -> None:
 def main(args: list[str] | None = None) -> int:
     """Run the command line; returns the exit code instead of exiting, for in-process tests."""
     os.environ.setdefault("WANDB_MODE", "offline")
-    # Idle OpenMP threads sleep instead of spinning: on a busy laptop core, spinning made
-    # 2 threads slower than 1 (bench: docs/results/bench.md). Read when torch first loads.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     # Freed tensor memory stays in the process for the next tensor instead of being faulted
     # in afresh (tactile_bench.allocator: ~8% more braille contacts/s on two threads).
     keep_freed_memory()
@@ -451,6 +448,13 @@ def main(args: list[str] | None = None) -> int:
         ns = parser.parse_args(args)
     except SystemExit as exc:  # --help or a usage error: argparse already printed
         return int(exc.code or 0)
+    # Idle OpenMP threads sleep instead of spinning: on a busy laptop core, spinning made
+    # 2 threads slower than 1 (bench: docs/results/bench.md). Read when torch first loads,
+    # which the parser does not do. A command of many small ops sets None: the runtime's
+    # spin-then-sleep (diagnose.commands.FIT_MANY_SMALL_OPS).
+    policy = getattr(ns, "omp_wait_policy", "PASSIVE")
+    if policy:
+        os.environ.setdefault("OMP_WAIT_POLICY", policy)
     configure_logging(logging.DEBUG if ns.verbose else logging.INFO)
     try:
         # every argument, output location and environment setting, before any work

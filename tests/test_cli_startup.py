@@ -63,3 +63,40 @@ def test_the_bench_times_every_help_in_a_fresh_process() -> None:
     assert result["slowest_help_s"] == max(row["median_s"] for row in result["rows"])
     table = "\n".join(_startup({"startup": result}))
     assert "| `list --help` |" in table and "Every `--help` under 1 s" in table
+
+
+_POLICY_PROBE = """
+import contextlib, io, json, os, sys
+from tactile_bench.cli import main
+with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+    code = main(json.loads(sys.argv[1]))
+print(json.dumps([code, os.environ.get("OMP_WAIT_POLICY")]))
+"""
+
+
+def _policy_after(command: list[str], env: dict[str, str]) -> tuple[int, str | None]:
+    done = subprocess.run(
+        [sys.executable, "-c", _POLICY_PROBE, json.dumps(command)],
+        capture_output=True,
+        text=True,
+        check=True,
+        env=env,
+    )
+    code, policy = json.loads(done.stdout.strip().splitlines()[-1])
+    return code, policy
+
+
+def test_openmp_threads_sleep_except_in_the_diagnosis(tmp_path) -> None:
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    assert _policy_after(["list", "effects"], env) == (0, "PASSIVE")
+    missing = str(tmp_path / "no_such_pairs")
+    for command in (
+        ["diagnose", missing, "--out", str(tmp_path / "out")],
+        ["validate-diagnosis", "--out", str(tmp_path / "v"), "--pairs", "-1"],
+    ):
+        code, policy = _policy_after(command, env)
+        assert code != 0 and policy is None, command  # the runtime's spin-then-sleep
+    # a setting of the user's own is kept, whatever the command
+    assert _policy_after(["list", "effects"], {**env, "OMP_WAIT_POLICY": "ACTIVE"})[1] == "ACTIVE"

@@ -96,6 +96,6 @@ def warning(stability: Mapping[str, Any] | None) -> str | None:
         f"(from {stability['depth_held_mm']:.2f} mm), the selection names "
         f"{stability['named_first']} first, which it neither selects nor finds confusable with "
         f"{' / '.join(stability['accepted'])}: the explanation depends on the presses it was "
-        "fitted on, so an effect outside the candidates is likely at work. Presses of one "
-        "shape at several depths would show which"
+        f"fitted on, so an effect is missing from it ({stability['named_first']}, or one "
+        "outside the candidates). Presses of one shape at several depths would show which"
     )

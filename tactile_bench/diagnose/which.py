@@ -244,10 +244,12 @@ def explain_gap(
     seed: int = 0,
     progress: bool = True,
     stability: bool = True,
+    max_rounds: int = MAX_ROUNDS,
 ) -> WhichResult:
     """Fit every candidate on ``fit_idx``, score it on ``held_idx``, select the set that
     explains the gap, and report what it leaves unexplained (see the module docstring);
-    ``stability``: also re-run the selection across press depths (``stability.check``)."""
+    ``stability``: also re-run the selection across press depths (``stability.check``);
+    ``max_rounds``: stop selecting after this many effects."""
     fit_idx = _check_split(data, fit_idx, "fit")
     held_idx = _check_split(data, held_idx, "held-out")
     names = list(DEFAULT_CANDIDATES if candidates is None else candidates)
@@ -284,7 +286,7 @@ def explain_gap(
         set_aside.append(name)
         return False
 
-    for _ in range(MAX_ROUNDS):
+    for _ in range(max_rounds):
         if not options:
             break
         row = _pick(
@@ -326,7 +328,9 @@ def explain_gap(
     if stability:
 
         def rerun(fit_part: torch.Tensor, held_part: torch.Tensor) -> list[EffectFit]:
-            return explain_gap(data, fit_part, held_part, names, seed, False, False).ranking
+            # only what it names first is compared: later rounds would not change that
+            args = (data, fit_part, held_part, names, seed, False, False)
+            return explain_gap(*args, max_rounds=1).ranking
 
         result.stability = check_stability(ranking, data.depth, rerun)
     return result
