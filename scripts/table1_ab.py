@@ -14,6 +14,7 @@ a condition (mean and per-seed accuracy on the real classifier test set):
     python scripts/table1_ab.py cgan_coarse_place RUN_DIR # ... that band near / away from contacts
     python scripts/table1_ab.py cgan_mean_colour RUN_DIR  # ... its per-image mean colour offset
     python scripts/table1_ab.py cgan_away_pattern RUN_DIR # ... does that part name the letter
+    python scripts/table1_ab.py cgan_halo RUN_DIR  # ... is that part a blurred copy of the contact
     python scripts/table1_ab.py rotated RUN_DIR    # every row's models on the yaw-to-90 test set
     python scripts/table1_ab.py legibility RUN_DIR # every row's models on each translator's
                                                    # rendering of the classifier test contacts
@@ -426,6 +427,51 @@ def cgan_away_pattern(run: Path, out: Path, coarse_px: float = 4.0) -> None:
         _report(name, accs)
 
 
+HALO_SIGMAS_PX = (4.0, 8.0, 16.0)
+
+
+def cgan_halo(run: Path, out: Path, coarse_px: float = 4.0) -> None:
+    """Is the cGAN's coarse difference to real away from the contact a halo: its own contact
+    colour change spread wider than real's? Per channel, least squares of that difference on
+    the cGAN's near-contact colour change blurred at 4, 8 and 16 px (plus a constant), over
+    every pixel away from the contact; prints the share of its variance the fit explains,
+    then trains on real + the fitted halo only and on real + what the fit leaves only."""
+    (fg, labels), test, pool_fg = _cgan_inputs(run)
+    classifier_set = _classifier_set_in_order(run, labels)
+    real_fg = classifier_set.foreground("real")
+    swap = _low_pass(fg, coarse_px) - _low_pass(real_fg, coarse_px)
+    near = _near_contact(classifier_set.depth)
+    contact = fg * near
+    del fg
+    away = (~near).float()
+    halo = torch.zeros_like(swap)
+    explained = []
+    for c in range(swap.shape[1]):
+        columns = [_low_pass(contact[:, c : c + 1], s).flatten() for s in HALO_SIGMAS_PX]
+        design = torch.stack([*columns, torch.ones_like(columns[0])], dim=1).double()
+        target, weight = swap[:, c].flatten().double(), away.flatten().double()
+        coef = torch.linalg.lstsq(design * weight[:, None], target * weight).solution
+        fitted = (design @ coef).float().view_as(swap[:, c])
+        halo[:, c] = fitted
+        resid = (target - design @ coef) * weight
+        centred = (target - (target * weight).sum() / weight.sum()) * weight
+        explained.append(
+            {
+                "channel": "rgb"[c],
+                "coef_per_sigma_px": dict(zip(HALO_SIGMAS_PX, coef[:-1].tolist(), strict=True)),
+                "r2_away": round(1 - float(resid.square().sum() / centred.square().sum()), 4),
+            }
+        )
+    print(json.dumps({"halo_fit": explained}))
+    del contact
+    conditions = {
+        "real + the halo fitted to the cGAN's coarse band away from the contact": halo,
+        "real + what that halo fit leaves of the cGAN's coarse band away from it": swap - halo,
+    }
+    for name, part in conditions.items():
+        _train_and_score(name, (real_fg + part * away, labels), test, pool_fg, out)
+
+
 def cgan_mean_colour(run: Path, out: Path) -> None:
     """Real frames shifted by the cGAN's per-image mean colour offset (its image's mean over
     the view, channel by channel, less real's): whether the coarse cue away from the
@@ -613,6 +659,7 @@ def main() -> None:
             "cgan_coarse_place",
             "cgan_mean_colour",
             "cgan_away_pattern",
+            "cgan_halo",
             "rotated",
             "legibility",
             "ssim",
@@ -646,6 +693,7 @@ def main() -> None:
             "cgan_coarse_place": lambda: cgan_coarse_place(ns.run_dir, out, ns.coarse),
             "cgan_mean_colour": lambda: cgan_mean_colour(ns.run_dir, out),
             "cgan_away_pattern": lambda: cgan_away_pattern(ns.run_dir, out, ns.coarse),
+            "cgan_halo": lambda: cgan_halo(ns.run_dir, out, ns.coarse),
             "rotated": lambda: rotated(ns.run_dir),
             "legibility": lambda: legibility(ns.run_dir),
             "ssim": lambda: ssim(ns.run_dir),
