@@ -203,9 +203,9 @@ def main() -> None:
     print(f"variant {args.variant}, read noise {args.read_noise} ({noisy}), {args.pairs} pairs")
     print(
         "| case | planted | background share | selected (shrink ~ confusable) | first | "
-        "unexplained | flagged | s |"
+        "unexplained | depth split names | flagged | s |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for case in args.cases.split(","):
         start = time.perf_counter()
         data = third_renderer_pairs(
@@ -222,10 +222,12 @@ def main() -> None:
             for r in result.ranking
         )
         bg = f"{result.background.shrink:.3f}" if result.background else "-"
+        split_first = (result.stability.named_first if result.stability else None) or "-"
+        flag = "unstable" if result.unstable else "yes" if result.residual_flagged else "no"
         print(
             f"| {case} | {CASES[case][0] or '-'} | {bg} | {chosen or 'none'} | "
-            f"{first.effect if first else '-'} | {result.unexplained:.3f} | "
-            f"{'yes' if result.residual_flagged else 'no'} | {time.perf_counter() - start:.0f} |",
+            f"{first.effect if first else '-'} | {result.unexplained:.3f} | {split_first} | "
+            f"{flag} | {time.perf_counter() - start:.0f} |",
             flush=True,
         )
 
