@@ -16,11 +16,9 @@ import argparse
 import json
 import time
 
-import numpy as np
-import torch
-
 from tactile_bench.diagnose import validate as V
 from tactile_bench.diagnose.candidates import DEFAULT_CANDIDATES
+from tactile_bench.diagnose.stability import depth_halves
 from tactile_bench.diagnose.which import explain_gap
 
 
@@ -35,21 +33,12 @@ def main() -> None:
     for name in args.cases:
         index = next(i for i, c in enumerate(cases) if c.name == name)
         case = cases[index]
-        data_seed = int(np.random.SeedSequence([seed, index, 1009]).generate_state(1)[0])
-        if case.foreign is None:
-            data = V.planted_pairs(bank, case.params, args.pairs, data_seed, size)
-        else:
-            plant, shading, variant = case.foreign
-            data = V.foreign_pairs(
-                bank, plant, case.params[plant], args.pairs, data_seed, size, shading, variant
-            )
-        n = args.pairs
-        order = torch.sort(data.depth.flatten(1).amax(1), stable=True).indices
-        perm = torch.randperm(n, generator=torch.Generator().manual_seed(data_seed))
+        data, random_fit, random_held = V.case_pairs(case, bank, args.pairs, seed, size, index)
+        shallow, deep = depth_halves(data.depth, n_max=args.pairs)
         splits = {
-            "random": (perm[: n // 2], perm[n // 2 :]),
-            "shallow->deep": (order[: n // 2], order[n // 2 :]),
-            "deep->shallow": (order[n // 2 :], order[: n // 2]),
+            "random": (random_fit, random_held),
+            "shallow->deep": (shallow, deep),
+            "deep->shallow": (deep, shallow),
         }
         candidates = [c for c in DEFAULT_CANDIDATES if c not in case.removed]
         for label, (fit_idx, held_idx) in splits.items():

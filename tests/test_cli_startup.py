@@ -4,8 +4,10 @@ and each command imports torch, Lightning and the renderer only when it runs (is
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 from tactile_bench.cli import build_parser, command_paths
 
@@ -86,9 +88,7 @@ def _policy_after(command: list[str], env: dict[str, str]) -> tuple[int, str | N
     return code, policy
 
 
-def test_openmp_threads_sleep_except_in_the_diagnosis(tmp_path) -> None:
-    import os
-
+def test_openmp_threads_sleep_except_in_the_diagnosis(tmp_path: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     assert _policy_after(["list", "effects"], env) == (0, "PASSIVE")
     missing = str(tmp_path / "no_such_pairs")

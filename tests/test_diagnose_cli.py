@@ -245,24 +245,34 @@ def test_diagnose_stage(tmp_path: Path, backend: list[str] | None) -> None:
     assert kind.precision_dependent  # with downstream classifiers its result depends on it
 
 
+def _summary_report(**fields: Any) -> dict[str, Any]:
+    """The fields ``_summary_lines`` reads of a diagnosis of 8 pairs, with ``fields`` on top."""
+    base = {
+        "n_pairs": 8,
+        "split": {"n_fit": 4, "n_held": 4},
+        "timing_s": {"total": 1.0},
+        "where": {"mse": 3.0, "dominant": []},
+        "ranking": [],
+        "unexplained": 0.0,
+        "residual_flagged": False,
+    }
+    return base | fields
+
+
 def test_summary_lines_tolerate_any_how_far_fields() -> None:
     from tactile_bench.diagnose.commands import _summary_lines
 
     where = {"mse": 3.0, "dominant": [{"axis": "band", "part": "DC", "share": 0.5}]}
-    report = {
-        "n_pairs": 8,
-        "split": {"n_fit": 4, "n_held": 4},
-        "timing_s": {"total": 1.0},
-        "where": where,
-        "ranking": [],
-        "unexplained": 1.0,
-        "residual_flagged": True,
-        "how_far": {
+    report = _summary_report(
+        where=where,
+        unexplained=1.0,
+        residual_flagged=True,
+        how_far={
             "pixel": {"before": {"mse": 9.0, "ssim": 0.5}, "after": {"mse": 4.0, "ssim": 0.7}},
             "distribution": {"kid_before": 0.1, "kid_after": None},
             "downstream": {"classes": 3, "classifier": "tiny", "real_accuracy": 0.9},
         },
-    }
+    )
     text = "\n".join(_summary_lines(report))
     assert "mse 9 -> 4" in text and "real 0.9" in text and "no candidate" in text
 
@@ -279,16 +289,7 @@ def test_the_summary_warns_when_the_depth_split_names_another_effect() -> None:
         "depth_held_mm": 1.1,
         "accepted": ["optical_response", "elastic_spread"],
     }
-    report = {
-        "n_pairs": 100,
-        "split": {"n_fit": 50, "n_held": 50},
-        "timing_s": {"total": 1.0},
-        "where": {"mse": 3.0, "dominant": []},
-        "ranking": [],
-        "unexplained": 0.02,
-        "residual_flagged": False,
-        "stability": stability,
-    }
+    report = _summary_report(unexplained=0.02, stability=stability)
     text = "\n".join(_summary_lines(report))
     assert "names led_diffusivity first" in text and "outside the candidates" in text
     assert "no candidate explains" not in text  # the residual itself is small
@@ -333,15 +334,6 @@ def test_first_lines_show_the_background_line_sim_optics_and_confusable_sets() -
 def test_the_summary_says_unexplained_is_counted_above_the_pairs_noise() -> None:
     from tactile_bench.diagnose.commands import _summary_lines
 
-    report = {
-        "n_pairs": 8,
-        "split": {"n_fit": 4, "n_held": 4},
-        "timing_s": {"total": 1.0},
-        "where": {"mse": 3.0, "dominant": []},
-        "ranking": [],
-        "unexplained": 0.0,
-        "residual_flagged": False,
-        "which": {"noise": {"sim": [0.0, 0.0, 0.0], "real": [2.1, 2.4, 2.2]}},
-    }
+    report = _summary_report(which={"noise": {"sim": [0.0, 0.0, 0.0], "real": [2.1, 2.4, 2.2]}})
     text = "\n".join(_summary_lines(report))
     assert "counted above the pairs' own noise (std, grey levels: sim 0, real 2.4)" in text

@@ -49,7 +49,9 @@ class Stability:
         return asdict(self)
 
 
-def depth_halves(depth: torch.Tensor, n_max: int = STABILITY_PAIRS) -> tuple[torch.Tensor, ...]:
+def depth_halves(
+    depth: torch.Tensor, n_max: int = STABILITY_PAIRS
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Indices of the shallowest and the deepest ``n_max // 2`` pairs by peak penetration
     (ties in index order, so the split is the same on every run)."""
     peak = depth.flatten(1).amax(1)

@@ -179,11 +179,12 @@ def planted_pairs(
     )
 
 
-def run_case(
+def case_pairs(
     case: Case, bank: HeightFieldBank, n: int, seed: int, size: int, index: int
-) -> dict[str, Any]:
-    """Plant, diagnose blind, and score one case."""
-    start = time.perf_counter()
+) -> tuple[PairedData, torch.Tensor, torch.Tensor]:
+    """The ``index``-th case's ``n`` pairs and its random fit / held-out halves, seeded by
+    (``seed``, ``index``): the same data and split in a full run and when a case is re-run
+    alone (``scripts/diagnosis_depth_split.py``)."""
     data_seed = int(np.random.SeedSequence([seed, index, 1009]).generate_state(1)[0])
     if case.foreign is None:
         data = planted_pairs(bank, case.params, n, data_seed, size)
@@ -191,7 +192,15 @@ def run_case(
         plant, shading, variant = case.foreign
         data = foreign_pairs(bank, plant, case.params[plant], n, data_seed, size, shading, variant)
     perm = torch.randperm(n, generator=torch.Generator().manual_seed(data_seed))
-    fit_idx, held_idx = perm[: n // 2], perm[n // 2 :]
+    return data, perm[: n // 2], perm[n // 2 :]
+
+
+def run_case(
+    case: Case, bank: HeightFieldBank, n: int, seed: int, size: int, index: int
+) -> dict[str, Any]:
+    """Plant, diagnose blind, and score one case."""
+    start = time.perf_counter()
+    data, fit_idx, held_idx = case_pairs(case, bank, n, seed, size, index)
     candidates = [c for c in DEFAULT_CANDIDATES if c not in case.removed]
     result = explain_gap(data, fit_idx, held_idx, candidates, seed=seed, progress=False)
     seconds = time.perf_counter() - start

@@ -329,8 +329,16 @@ def explain_gap(
 
         def rerun(fit_part: torch.Tensor, held_part: torch.Tensor) -> list[EffectFit]:
             # only what it names first is compared: later rounds would not change that
-            args = (data, fit_part, held_part, names, seed, False, False)
-            return explain_gap(*args, max_rounds=1).ranking
+            return explain_gap(
+                data,
+                fit_part,
+                held_part,
+                names,
+                seed,
+                progress=False,
+                stability=False,
+                max_rounds=1,
+            ).ranking
 
         result.stability = check_stability(ranking, data.depth, rerun)
     return result
