@@ -5,6 +5,9 @@ bf16 autocast is a speed-up only where the hardware has bf16 arithmetic. On an A
 than in fp32 (measured: 64 -> 64 channels on 16 x 64 x 64 x 64, 76 ms fp32, 4.9 s bf16);
 on AVX-512-BF16 or AMX CPUs it is 1.3-1.9x faster. So ``precision: auto`` (the default of
 every config that chooses one) resolves per machine: bf16 where it is native, fp32 elsewhere.
+"Native" also means oneDNN may use it: ``ONEDNN_MAX_CPU_ISA`` capped below AVX512_CORE_BF16
+makes an AVX-512-BF16 CPU run bf16 convolutions as an AVX2 one does (measured: AVX2 69x
+slower than fp32, AVX512_CORE 2x), so ``auto`` then picks fp32 as it would there.
 
 Lowest layer: imports torch and the standard library only.
 """
@@ -13,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -26,12 +30,30 @@ log = logging.getLogger("tactile_bench")
 Precision = Literal["auto", "32-true", "bf16-mixed"]
 PRECISIONS: tuple[str, ...] = ("auto", "32-true", "bf16-mixed")
 _CPUINFO_FLAGS = ("avx512_bf16", "amx_bf16")
+#: oneDNN ISA caps (``ONEDNN_MAX_CPU_ISA``, oneDNN's docs "CPU dispatcher control") with no
+#: bf16 dot product: under them oneDNN emulates bf16 whatever the CPU has
+_ONEDNN_CAPS_WITHOUT_BF16 = frozenset(
+    {"SSE41", "AVX", "AVX2", "AVX2_VNNI", "AVX2_VNNI_2", "AVX512_CORE", "AVX512_CORE_VNNI"}
+)
 _WARNED: set[str] = set()  # devices already warned about a slow explicit bf16
+
+
+def _onednn_allows_bf16() -> bool:
+    """False when ``ONEDNN_MAX_CPU_ISA`` (or its old name ``DNNL_MAX_CPU_ISA``) caps oneDNN
+    below bf16 arithmetic, e.g. to reproduce an AVX2 machine's kernels on a newer CPU."""
+    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
+        cap = os.environ.get(name)
+        if cap:
+            return cap.strip().upper() not in _ONEDNN_CAPS_WITHOUT_BF16
+    return True
 
 
 @functools.cache
 def _cpu_native_bf16() -> bool:
-    """AVX-512-BF16 or AMX: torch's own probes when it has them, else /proc/cpuinfo."""
+    """AVX-512-BF16 or AMX that oneDNN may use: torch's own probes when it has them, else
+    /proc/cpuinfo; and no ``ONEDNN_MAX_CPU_ISA`` cap below bf16."""
+    if not _onednn_allows_bf16():
+        return False
     probes = [
         getattr(torch.cpu, name, None)
         for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported")

@@ -49,6 +49,29 @@ def test_native_bf16_from_torch_probes(
     assert hardware.resolve_precision("auto") == ("bf16-mixed" if native else "32-true")
 
 
+@pytest.mark.parametrize(
+    ("variable", "cap", "native"),
+    [
+        ("ONEDNN_MAX_CPU_ISA", "AVX2", False),
+        ("ONEDNN_MAX_CPU_ISA", "avx512_core", False),
+        ("DNNL_MAX_CPU_ISA", "AVX512_CORE_VNNI", False),
+        ("ONEDNN_MAX_CPU_ISA", "AVX512_CORE_BF16", True),
+        ("ONEDNN_MAX_CPU_ISA", "AVX512_CORE_AMX", True),
+        ("ONEDNN_MAX_CPU_ISA", "ALL", True),
+    ],
+)
+def test_a_onednn_isa_cap_below_bf16_means_fp32(
+    probes: Any, monkeypatch: pytest.MonkeyPatch, variable: str, cap: str, native: bool
+) -> None:
+    """An AVX-512-BF16 CPU whose oneDNN is capped to AVX2 emulates bf16 as an AVX2 CPU does."""
+    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv(variable, cap)
+    probes(True, False)
+    assert hardware.native_bf16("cpu") is native
+    assert hardware.resolve_precision("auto") == ("bf16-mixed" if native else "32-true")
+
+
 def test_cpuinfo_fallback_without_torch_probes(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
     for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported"):
         monkeypatch.delattr(torch.cpu, name)
