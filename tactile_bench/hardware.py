@@ -159,6 +159,16 @@ def trainer_precision(settings: Mapping[str, Any], configured: str) -> Any:
     return resolve_precision(explicit, device) if explicit in PRECISIONS else explicit
 
 
+#: environment variables that cap the instruction sets torch's kernels use on this CPU
+ISA_CAP_VARIABLES = ("ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA")
+
+
+def isa_caps() -> dict[str, str]:
+    """The ISA caps set in this process's environment: a run under them times another CPU's
+    kernels on this one, which its record must say."""
+    return {name: os.environ[name] for name in ISA_CAP_VARIABLES if os.environ.get(name)}
+
+
 def machine_compute() -> dict[str, Any]:
     """What precision and speed figures depend on: for run.json, reports and the bench."""
     return {
@@ -166,4 +176,5 @@ def machine_compute() -> dict[str, Any]:
         "native_bf16": native_bf16("cpu"),
         "torch_threads": torch.get_num_threads(),
         "auto_precision": resolve_precision("auto"),
+        "isa_caps": isa_caps(),
     }

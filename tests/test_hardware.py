@@ -167,7 +167,9 @@ def test_trainer_device() -> None:
     assert hardware.trainer_device(None) == ("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def test_machine_compute(probes: Any) -> None:
+def test_machine_compute(probes: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    for name in hardware.ISA_CAP_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
     probes(False, False)
     info = hardware.machine_compute()
     assert info == {
@@ -175,6 +177,24 @@ def test_machine_compute(probes: Any) -> None:
         "native_bf16": False,
         "torch_threads": torch.get_num_threads(),
         "auto_precision": "32-true",
+        "isa_caps": {},
     }
     probes(False, True)
     assert hardware.machine_compute()["auto_precision"] == "bf16-mixed"
+
+
+def test_a_run_under_isa_caps_says_so(probes: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Timings under ATEN_CPU_CAPABILITY / ONEDNN_MAX_CPU_ISA are another CPU's kernels on
+    this one: run.json and the report's machine line carry the caps."""
+    from tactile_bench.pipeline.stages.report import machine_line
+
+    for name in hardware.ISA_CAP_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    probes(True, False)
+    assert "capped" not in machine_line(hardware.machine_compute())
+    monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")
+    hardware._cpu_native_bf16.cache_clear()
+    info = hardware.machine_compute()
+    assert info["isa_caps"] == {"ONEDNN_MAX_CPU_ISA": "AVX2"}
+    assert info["auto_precision"] == "32-true"
+    assert machine_line(info).endswith("(instruction sets capped: ONEDNN_MAX_CPU_ISA=AVX2)")

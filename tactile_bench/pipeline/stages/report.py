@@ -115,9 +115,11 @@ def machine_line(info: dict[str, Any]) -> str:
     """One line on what the timings and the precision depend on (``hardware.machine_compute``)."""
     native = "yes" if info["native_bf16"] else "no"
     threads = info["torch_threads"]
+    caps = ", ".join(f"{k}={v}" for k, v in (info.get("isa_caps") or {}).items())
     return (
         f"Machine: CPU capability {info['cpu_capability']}, native bf16 {native}, {threads} "
         f"thread{'s' * (threads != 1)} a stage; precision: auto -> {info['auto_precision']}"
+        + (f" (instruction sets capped: {caps})" if caps else "")
     )
 
 
