@@ -27,6 +27,8 @@ a condition (mean and per-seed accuracy on the real classifier test set):
 stage does, with the classifier settings of table1.yaml's fine-tuning rows (``--lr`` sets
 the base lr the conditions vary around). ``cgan`` trains the base classifier on the run's
 cGAN images. Both write nothing into the run directory (their scratch goes to ``--out``).
+``--cgan-stage`` points the cgan_* experiments at another translate stage of the run, e.g. a
+generator variant of ``scripts/cgan_generator_ab.yaml``.
 """
 
 from __future__ import annotations
@@ -62,6 +64,8 @@ from tactile_bench.translators.registry import translator_class
 
 SEEDS = (0, 1, 2)
 N_CLASSES = 27
+#: the translate stage whose images the cgan_* experiments take (``--cgan-stage``)
+cgan_stage = "translate_cgan"
 QUIET = {"enable_progress_bar": False, "enable_checkpointing": False}
 
 
@@ -141,7 +145,7 @@ def _cgan_inputs(
     braille = _stage(run, "braille")
     test = BrailleSet.load(braille / "classifier_test.npz")
     pool_fg = BrailleSet.load(braille / "finetune.npz").foreground("real")
-    return _images(run, "translate_cgan"), (test.foreground("real"), test.labels), pool_fg
+    return _images(run, cgan_stage), (test.foreground("real"), test.labels), pool_fg
 
 
 def _fitted_translator(run: Path, fit_stage: str, name: str, **settings: object) -> Any:
@@ -252,7 +256,7 @@ def _classifier_set_in_order(run: Path, labels: torch.Tensor) -> BrailleSet:
     cGAN's translations of it (checked by their labels)."""
     classifier_set = BrailleSet.load(_stage(run, "braille") / "classifier.npz")
     if not torch.equal(classifier_set.labels, labels):
-        raise SystemExit("translate_cgan's classifier images are not in the braille set's order")
+        raise SystemExit(f"{cgan_stage}'s classifier images are not in the braille set's order")
     return classifier_set
 
 
@@ -644,6 +648,7 @@ def footprint(run: Path) -> None:
 
 
 def main() -> None:
+    global cgan_stage
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "experiment",
@@ -678,7 +683,14 @@ def main() -> None:
         default=4.0,
         help="coarse split, px (cgan_three_bands, _coarse_gain)",
     )
+    parser.add_argument(
+        "--cgan-stage",
+        default=cgan_stage,
+        help="translate stage the cgan_* experiments read (e.g. translate_cgan_bn of "
+        "scripts/cgan_generator_ab.yaml)",
+    )
     ns = parser.parse_args()
+    cgan_stage = ns.cgan_stage
     with tempfile.TemporaryDirectory() as tmp:
         out = ns.out or Path(tmp)
         experiments: dict[str, Callable[[], None]] = {

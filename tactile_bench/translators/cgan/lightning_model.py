@@ -20,7 +20,7 @@ from tactile_bench.training import FitReport
 from tactile_bench.translators.base import Translator, TranslatorConfig
 from tactile_bench.translators.cgan.divergence import DivergenceMonitor
 from tactile_bench.translators.cgan.loss import discriminator_loss, generator_loss
-from tactile_bench.translators.cgan.torch_model import PatchDiscriminator, UNetGenerator
+from tactile_bench.translators.cgan.torch_model import Norm, PatchDiscriminator, UNetGenerator
 
 log = logging.getLogger("tactile_bench")
 
@@ -53,6 +53,11 @@ class CGANConfig(TranslatorConfig):
     dropout: float = Field(
         default=0.5, ge=0, lt=1, description="dropout of the innermost decoder layers"
     )
+    generator_norm: Norm = Field(
+        default="instance",
+        description="the generator's norm: instance (pix2pix at batch 1), or batch, evaluated "
+        "with running statistics so an output pixel sees only its receptive field",
+    )
     depth_scale_mm: float = Field(
         default=1.0, gt=0, description="the generator sees depth in mm divided by this"
     )
@@ -77,7 +82,12 @@ class CGANTranslator(Translator):
         with torch.random.fork_rng(devices=[]):  # same seed -> same initial weights
             torch.manual_seed(cfg.seed)
             self.generator = UNetGenerator(
-                1, 3, cfg.generator_channels, cfg.num_downs, dropout=cfg.dropout
+                1,
+                3,
+                cfg.generator_channels,
+                cfg.num_downs,
+                dropout=cfg.dropout,
+                norm=cfg.generator_norm,
             )
             self.discriminator = PatchDiscriminator(
                 4, cfg.discriminator_channels, cfg.discriminator_layers

@@ -4,15 +4,25 @@ Deviations from the original, for a deterministic CPU baseline: instance norm in
 batch norm (pix2pix trains with batch 1, where the two coincide, and instance norm has no
 running statistics to drift between train and eval), and dropout only while training, so
 ``translate`` is a deterministic function of the depth.
+
+The generator's norm is a choice (``norm``): instance norm divides every feature map by its
+own image's statistics, so each output pixel depends on the whole image, however far its
+convolutions reach; batch norm evaluated with its running statistics does not.
 """
 
 from __future__ import annotations
 
+from typing import Literal
+
 import torch
 from torch import nn
 
+Norm = Literal["instance", "batch"]
 
-def _norm(channels: int) -> nn.Module:
+
+def _norm(channels: int, kind: Norm = "instance") -> nn.Module:
+    if kind == "batch":
+        return nn.BatchNorm2d(channels)
     return nn.InstanceNorm2d(channels, affine=True)
 
 
@@ -27,6 +37,7 @@ class UNetGenerator(nn.Module):
         num_downs: int = 4,
         max_channels: int = 128,
         dropout: float = 0.5,
+        norm: Norm = "instance",
     ) -> None:
         super().__init__()
         widths = [min(base_channels * 2**i, max_channels) for i in range(num_downs)]
@@ -35,7 +46,7 @@ class UNetGenerator(nn.Module):
         for i, width in enumerate(widths):
             layers: list[nn.Module] = [nn.Conv2d(previous, width, 4, 2, 1, bias=False)]
             if 0 < i < num_downs - 1:  # no norm on the first layer nor on the 1x1-ish bottleneck
-                layers.append(_norm(width))
+                layers.append(_norm(width, norm))
             layers.append(nn.LeakyReLU(0.2))
             self.down.append(nn.Sequential(*layers))
             previous = width
@@ -43,7 +54,10 @@ class UNetGenerator(nn.Module):
         for i in reversed(range(num_downs - 1)):
             # input: previous decoder output, concatenated with the skip after the first level
             in_ch = previous if i == num_downs - 2 else previous * 2
-            layers = [nn.ConvTranspose2d(in_ch, widths[i], 4, 2, 1, bias=False), _norm(widths[i])]
+            layers = [
+                nn.ConvTranspose2d(in_ch, widths[i], 4, 2, 1, bias=False),
+                _norm(widths[i], norm),
+            ]
             if dropout > 0 and i >= num_downs - 3:  # dropout on the innermost decoders only
                 layers.append(nn.Dropout(dropout))
             layers.append(nn.ReLU())
