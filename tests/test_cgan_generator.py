@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from tactile_bench.translators.cgan.lightning_model import CGANConfig, CGANTranslator
-from tactile_bench.translators.cgan.torch_model import UNetGenerator
+from tactile_bench.translators.cgan.torch_model import UNetGenerator, upsampling
 
 
 def _far_corner_change(norm: str) -> float:
@@ -47,3 +47,24 @@ def test_the_translator_builds_the_configured_norm(norm: str) -> None:
 def test_an_unknown_norm_is_a_config_error() -> None:
     with pytest.raises(ValueError, match="generator_norm"):
         CGANConfig(generator_norm="layer")
+
+
+@pytest.mark.parametrize(("kind", "alternates"), [("transpose", True), ("resize", False)])
+def test_transposed_convolutions_alternate_kernels_pixel_by_pixel(
+    kind: str, alternates: bool
+) -> None:
+    """A flat input comes out of a stride-2 transposed convolution with a pixel-period pattern
+    (four kernels take turns); resize + convolution keeps it flat away from the border."""
+    torch.manual_seed(0)
+    layer = upsampling(4, 1, kind, bias=False)
+    with torch.no_grad():
+        out = layer(torch.ones(1, 4, 8, 8))[0, 0, 2:-2, 2:-2]
+    step = float((out[:, 1:] - out[:, :-1]).abs().max())
+    assert (step > 1e-3) is alternates
+
+
+def test_the_translator_builds_the_configured_upsampling() -> None:
+    translator = CGANTranslator(CGANConfig(generator_upsample="resize", generator_channels=4))
+    kinds = {type(m).__name__ for m in translator.generator.modules()}
+    assert "ConvTranspose2d" not in kinds and "Upsample" in kinds
+    assert translator.generator(torch.zeros(1, 1, 64, 64)).shape == (1, 3, 64, 64)

@@ -20,7 +20,12 @@ from tactile_bench.training import FitReport
 from tactile_bench.translators.base import Translator, TranslatorConfig
 from tactile_bench.translators.cgan.divergence import DivergenceMonitor
 from tactile_bench.translators.cgan.loss import discriminator_loss, generator_loss
-from tactile_bench.translators.cgan.torch_model import Norm, PatchDiscriminator, UNetGenerator
+from tactile_bench.translators.cgan.torch_model import (
+    Norm,
+    PatchDiscriminator,
+    UNetGenerator,
+    Upsample,
+)
 
 log = logging.getLogger("tactile_bench")
 
@@ -58,6 +63,11 @@ class CGANConfig(TranslatorConfig):
         description="the generator's norm: instance (pix2pix at batch 1), or batch, evaluated "
         "with running statistics so an output pixel sees only its receptive field",
     )
+    generator_upsample: Upsample = Field(
+        default="transpose",
+        description="the generator's upsampling: transpose (pix2pix's stride-2 transposed "
+        "convolutions) or resize (nearest-neighbour resize, then a 3 x 3 convolution)",
+    )
     depth_scale_mm: float = Field(
         default=1.0, gt=0, description="the generator sees depth in mm divided by this"
     )
@@ -88,6 +98,7 @@ class CGANTranslator(Translator):
                 cfg.num_downs,
                 dropout=cfg.dropout,
                 norm=cfg.generator_norm,
+                upsample=cfg.generator_upsample,
             )
             self.discriminator = PatchDiscriminator(
                 4, cfg.discriminator_channels, cfg.discriminator_layers

@@ -7,7 +7,11 @@ running statistics to drift between train and eval), and dropout only while trai
 
 The generator's norm is a choice (``norm``): instance norm divides every feature map by its
 own image's statistics, so each output pixel depends on the whole image, however far its
-convolutions reach; batch norm evaluated with its running statistics does not.
+convolutions reach; batch norm evaluated with its running statistics does not. So is its
+upsampling (``upsample``): pix2pix's stride-2 transposed convolutions, whose output pixels
+alternate between four kernels, or a nearest-neighbour resize followed by a convolution,
+which Odena, Dumoulin & Olah (2016, "Deconvolution and checkerboard artifacts", Distill)
+propose against the pixel-period pattern the former draws.
 """
 
 from __future__ import annotations
@@ -18,12 +22,23 @@ import torch
 from torch import nn
 
 Norm = Literal["instance", "batch"]
+Upsample = Literal["transpose", "resize"]
 
 
 def _norm(channels: int, kind: Norm = "instance") -> nn.Module:
     if kind == "batch":
         return nn.BatchNorm2d(channels)
     return nn.InstanceNorm2d(channels, affine=True)
+
+
+def upsampling(in_channels: int, out_channels: int, kind: Upsample, bias: bool) -> nn.Module:
+    """Doubles the side: a 4 x 4 stride-2 transposed convolution, or resize + 3 x 3 conv."""
+    if kind == "resize":
+        return nn.Sequential(
+            nn.Upsample(scale_factor=2, mode="nearest"),
+            nn.Conv2d(in_channels, out_channels, 3, 1, 1, bias=bias),
+        )
+    return nn.ConvTranspose2d(in_channels, out_channels, 4, 2, 1, bias=bias)
 
 
 class UNetGenerator(nn.Module):
@@ -38,6 +53,7 @@ class UNetGenerator(nn.Module):
         max_channels: int = 128,
         dropout: float = 0.5,
         norm: Norm = "instance",
+        upsample: Upsample = "transpose",
     ) -> None:
         super().__init__()
         widths = [min(base_channels * 2**i, max_channels) for i in range(num_downs)]
@@ -55,7 +71,7 @@ class UNetGenerator(nn.Module):
             # input: previous decoder output, concatenated with the skip after the first level
             in_ch = previous if i == num_downs - 2 else previous * 2
             layers = [
-                nn.ConvTranspose2d(in_ch, widths[i], 4, 2, 1, bias=False),
+                upsampling(in_ch, widths[i], upsample, bias=False),
                 _norm(widths[i], norm),
             ]
             if dropout > 0 and i >= num_downs - 3:  # dropout on the innermost decoders only
@@ -63,7 +79,9 @@ class UNetGenerator(nn.Module):
             layers.append(nn.ReLU())
             self.up.append(nn.Sequential(*layers))
             previous = widths[i]
-        self.out = nn.Sequential(nn.ConvTranspose2d(previous * 2, out_channels, 4, 2, 1), nn.Tanh())
+        self.out = nn.Sequential(
+            upsampling(previous * 2, out_channels, upsample, bias=True), nn.Tanh()
+        )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         skips = []
