@@ -455,9 +455,9 @@ def cgan_halo(run: Path, out: Path, coarse_px: float = 4.0) -> None:
         design = torch.stack([*columns, torch.ones_like(columns[0])], dim=1).double()
         target, weight = swap[:, c].flatten().double(), away.flatten().double()
         coef = torch.linalg.lstsq(design * weight[:, None], target * weight).solution
-        fitted = (design @ coef).float().view_as(swap[:, c])
-        halo[:, c] = fitted
-        resid = (target - design @ coef) * weight
+        prediction = design @ coef
+        halo[:, c] = prediction.float().view_as(swap[:, c])
+        resid = (target - prediction) * weight
         centred = (target - (target * weight).sum() / weight.sum()) * weight
         explained.append(
             {

@@ -35,13 +35,16 @@ _CPUINFO_FLAGS = ("avx512_bf16", "amx_bf16")
 _ONEDNN_CAPS_WITHOUT_BF16 = frozenset(
     {"SSE41", "AVX", "AVX2", "AVX2_VNNI", "AVX2_VNNI_2", "AVX512_CORE", "AVX512_CORE_VNNI"}
 )
+_ONEDNN_CAP_VARIABLES = ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA")  # the second: its old name
+#: environment variables that cap the instruction sets torch's kernels use on this CPU
+ISA_CAP_VARIABLES = ("ATEN_CPU_CAPABILITY", *_ONEDNN_CAP_VARIABLES)
 _WARNED: set[str] = set()  # devices already warned about a slow explicit bf16
 
 
 def _onednn_allows_bf16() -> bool:
     """False when ``ONEDNN_MAX_CPU_ISA`` (or its old name ``DNNL_MAX_CPU_ISA``) caps oneDNN
     below bf16 arithmetic, e.g. to reproduce an AVX2 machine's kernels on a newer CPU."""
-    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
+    for name in _ONEDNN_CAP_VARIABLES:
         cap = os.environ.get(name)
         if cap:
             return cap.strip().upper() not in _ONEDNN_CAPS_WITHOUT_BF16
@@ -157,10 +160,6 @@ def trainer_precision(settings: Mapping[str, Any], configured: str) -> Any:
     if explicit is None:
         return resolve_precision(configured, device)
     return resolve_precision(explicit, device) if explicit in PRECISIONS else explicit
-
-
-#: environment variables that cap the instruction sets torch's kernels use on this CPU
-ISA_CAP_VARIABLES = ("ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA")
 
 
 def isa_caps() -> dict[str, str]:
