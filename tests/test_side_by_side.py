@@ -24,7 +24,7 @@ from tactile_bench.pipeline import stages as stage_registry
 from tactile_bench.pipeline.recipe import load_recipe
 from tactile_bench.pipeline.runner import DONE, run_recipe
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
-from tactile_bench.pipeline.stages.classify import _seed_pool
+from tactile_bench.pools import spawned_pool
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -32,7 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 class NapConfig(StageConfig):
     seconds: float = 0.0
     fail: bool = False
-    seed_pool: bool = False  # start the classify stage's pool of seed workers, as it does
+    seed_pool: bool = False  # start a pool of workers inside the stage, as classify does
     meet: str = ""  # wait (at most a minute) until this stage has started too
 
 
@@ -49,7 +49,8 @@ def _nap(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         time.sleep(0.05)
     time.sleep(ctx.config.seconds)
     if ctx.config.seed_pool:
-        assert _seed_pool(2).submit(abs, -3).result() == 3
+        with spawned_pool(2) as pool:
+            assert pool.submit(abs, -3).result() == 3
     record = {"start": start, "end": time.time(), "pid": os.getpid()}
     (ctx.directory / "times.json").write_text(json.dumps(record))
     return {"times": "times.json"}, record

@@ -5,8 +5,8 @@ the chunk (``ycb_frames.chunk_generator``), so objects, and the chunks of one ob
 there are fewer objects than workers, can be built in any order and in any process with the
 same corpus; a trajectory split over jobs is joined by the caller. Ray casting holds the GIL
 (``embreex``), so processes, not threads, are what puts both cores to work. Workers are
-spawned (not forked: the parent's OpenMP and Embree thread pools do not survive a fork),
-run torch on one thread each, and are kept for later builds (spawning one costs ~2 s).
+spawned (``tactile_bench.pools``) for one build and stopped when it ends, and run torch on
+one thread each.
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ import dataclasses
 import time
 import warnings
 from collections.abc import Iterator
+from concurrent.futures import as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +28,7 @@ from tactile_bench.allocator import keep_freed_memory
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.objects import object_parts
 from tactile_bench.geometry.trajectories import exposed_surface, sliding_trajectories
+from tactile_bench.pools import cancel_pending, spawned_pool
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 from tactile_bench.sensor.optics import SimOptics
@@ -176,33 +179,6 @@ def _build_object_timed(job: ObjectJob) -> tuple[dict[int, int], dict | None]:
     return built, {**times, "process_cpu": time.process_time() - cpu}
 
 
-_POOL: Any = None  # (workers, ProcessPoolExecutor) kept for later builds: spawning costs ~2 s
-
-
-def _pool(workers: int) -> Any:
-    """A process pool of ``workers`` spawned workers, reused across builds in this process.
-
-    Spawned, not forked: the parent's OpenMP and Embree thread pools do not survive a fork.
-    Each worker imports the package once (~2 s of CPU), so keeping them pays off from the
-    second build on (benchmarks, pipelines with several corpora); shut down at exit.
-    """
-    global _POOL
-    import atexit
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    if _POOL is not None and _POOL[0] == workers and not getattr(_POOL[1], "_broken", False):
-        return _POOL[1]
-    if _POOL is not None:
-        _POOL[1].shutdown(wait=False, cancel_futures=True)
-    ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init)
-    if _POOL is None:
-        atexit.register(lambda: _POOL is not None and _POOL[1].shutdown(wait=False))
-    _POOL = (workers, pool)
-    return pool
-
-
 def _split_jobs(jobs: list[ObjectJob], workers: int) -> list[ObjectJob]:
     """Fewer objects than workers: split each object's chunks into groups of about equal
     frames (each group pays the object's set-up again, in its own process) so every
@@ -261,27 +237,23 @@ def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[tuple[ObjectJob, B
         for job in jobs:
             yield job, _build_object(job)
         return
-    from concurrent.futures import as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
     timer = active_timer()
     for job in jobs:
         job.timing = timer is not None
     left = list(jobs)
     try:
-        pool = _pool(workers)
-        futures = {pool.submit(_build_object_timed, job): job for job in jobs}
-        try:
-            for future in as_completed(futures):
-                built, times = future.result()
-                job = futures[future]
-                left.remove(job)
-                if timer is not None and times is not None:
-                    timer.merge(times["wall"], times["cpu"], times["process_cpu"])
-                yield job, built
-        finally:  # an error or an interrupt: do not leave the pool busy with the rest
-            for future in futures:
-                future.cancel()
+        with spawned_pool(workers, initializer=_worker_init) as pool:
+            futures = {pool.submit(_build_object_timed, job): job for job in jobs}
+            try:
+                for future in as_completed(futures):
+                    built, times = future.result()
+                    job = futures[future]
+                    left.remove(job)
+                    if timer is not None and times is not None:
+                        timer.merge(times["wall"], times["cpu"], times["process_cpu"])
+                    yield job, built
+            finally:  # an error or an interrupt: do not leave the pool busy with the rest
+                cancel_pending(futures)
     except BrokenProcessPool:
         # e.g. a script without ``if __name__ == "__main__":`` (spawned workers re-run it)
         warnings.warn(

@@ -25,13 +25,12 @@ from __future__ import annotations
 import dataclasses
 import gc
 import logging
-import os
 import signal
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 from typing import Any
 
 import torch
@@ -42,6 +41,7 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.pipeline.memory import peak_rss_mib
 from tactile_bench.pipeline.recipe import Stage
 from tactile_bench.pipeline.stages.base import StageContext
+from tactile_bench.pools import signal_workers, spawned_pool
 
 log = logging.getLogger("tactile_bench")
 
@@ -100,7 +100,7 @@ def _sigterm_to_workers(pool: ProcessPoolExecutor) -> Iterator[None]:
     checkpoint), and the runner itself stops as on Ctrl-C."""
 
     def handler(signum: int, frame: Any) -> None:
-        _signal_workers(pool, signal.SIGTERM)
+        signal_workers(pool, signal.SIGTERM)
         raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGTERM, handler)
@@ -108,13 +108,6 @@ def _sigterm_to_workers(pool: ProcessPoolExecutor) -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
-
-
-def _signal_workers(pool: ProcessPoolExecutor, signum: int) -> None:
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
-        if process.is_alive() and process.pid is not None:
-            with suppress(ProcessLookupError):
-                os.kill(process.pid, signum)
 
 
 def run_side_by_side(
@@ -133,12 +126,9 @@ def run_side_by_side(
     waiting = list(stages)
     running: dict[Future[Ran], tuple[Stage, Any]] = {}
     level = logging.getLogger("tactile_bench").getEffectiveLevel()
-    spawn = torch.multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(
-        jobs, mp_context=spawn, initializer=_start_worker, initargs=(_threads_per_job(jobs), level)
-    )
-    try:
-        with _sigterm_to_workers(pool):
+    initargs = (_threads_per_job(jobs), level)
+    with spawned_pool(jobs, _start_worker, initargs) as pool, _sigterm_to_workers(pool):
+        try:
             while waiting or running:
                 _submit_ready(stages, waiting, running, results, jobs, pool, start)
                 if not running:
@@ -149,13 +139,12 @@ def run_side_by_side(
                 for future in done:
                     stage, handle = running.pop(future)
                     results[stage.name] = finish(stage, handle, _ran(stage, future))
-    except BaseException:
-        # a failure or an interrupt: the other running stages save and stop, then this raises
-        _signal_workers(pool, signal.SIGTERM)
-        wait(running)
-        raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        except BaseException:
+            # a failure or an interrupt: the other running stages save and stop, then this
+            # raises
+            signal_workers(pool, signal.SIGTERM)
+            wait(running)
+            raise
     return {stage.name: results[stage.name] for stage in stages}
 
 

@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import multiprocessing.util
 import time
-from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Literal
@@ -44,6 +42,7 @@ from tactile_bench.pipeline.stages.base import (
     StageKind,
     StageResult,
 )
+from tactile_bench.pools import cancel_pending, spawned_pool
 from tactile_bench.report.figures import confusion_png, per_class_bar_png
 from tactile_bench.translators import image_to_foreground
 
@@ -218,34 +217,6 @@ def _train_seed_in_worker(
     return str(path), held_idx
 
 
-_POOL: tuple[int, ProcessPoolExecutor] | None = None  # kept for later stages: spawning costs
-
-
-def _seed_pool(workers: int) -> ProcessPoolExecutor:
-    """A pool of ``workers`` spawned processes, made once a process and reused by every
-    classify stage (each worker's start-up imports torch and Lightning: seconds)."""
-    global _POOL
-    if _POOL is None or _POOL[0] != workers:
-        if _POOL is not None:
-            _POOL[1].shutdown(wait=False, cancel_futures=True)
-        torch.multiprocessing.set_sharing_strategy("file_system")
-        spawn = torch.multiprocessing.get_context("spawn")
-        executor = ProcessPoolExecutor(workers, mp_context=spawn)
-        # shut down before a process that is itself a worker (``jobs`` > 1) joins its
-        # children at exit: multiprocessing joins them before the interpreter would tell
-        # this pool's idle workers to stop, and would wait for them for ever. Priority
-        # above the pool's own queues' (10), which must still carry the stop messages
-        multiprocessing.util.Finalize(executor, executor.shutdown, exitpriority=100)
-        _POOL = (workers, executor)
-    return _POOL[1]
-
-
-def _forget_pool() -> None:
-    """Drop a broken pool; the next parallel stage spawns a new one."""
-    global _POOL
-    _POOL = None
-
-
 def _train_seeds(
     ctx: StageContext,
     foreground: torch.Tensor,
@@ -255,12 +226,10 @@ def _train_seeds(
 ) -> list[tuple[Any, torch.Tensor]]:
     """Every seed's trained model and held-out indices, ``parallel_seeds`` at a time.
 
-    Workers are spawned, not forked: a forked child cannot use the parent's OpenMP pool. The
-    tensors reach them through shared memory files (torch's sharing strategy ``file_system``:
-    file descriptors fail in containers), and each worker trains on ``threads`` threads so
-    the workers together use the cores this process had. A seed's training is the same
-    function with the same arguments in either case, so its weights are the same as
-    training it here on that many threads.
+    The workers (``tactile_bench.pools``: spawned, stopped when the stage ends) train on
+    ``threads`` threads each so that together they use the cores this process had. A seed's
+    training is the same function with the same arguments in either case, so its weights are
+    the same as training it here on that many threads.
     """
     config: ClassifyConfig = ctx.config
     workers = min(config.parallel_seeds, len(config.seeds))
@@ -268,24 +237,23 @@ def _train_seeds(
         return [_train_one(ctx, seed, foreground, labels, n_classes, pool) for seed in config.seeds]
     threads = max(1, torch.get_num_threads() // workers)
     start = time.perf_counter()
-    executor = _seed_pool(workers)
-    jobs = [
-        executor.submit(
-            _train_seed_in_worker, ctx, seed, foreground, labels, n_classes, pool, threads
-        )
-        for seed in config.seeds
-    ]
     try:
-        done = [job.result() for job in jobs]
+        with spawned_pool(workers) as executor:
+            jobs = [
+                executor.submit(
+                    _train_seed_in_worker, ctx, seed, foreground, labels, n_classes, pool, threads
+                )
+                for seed in config.seeds
+            ]
+            try:
+                done = [job.result() for job in jobs]
+            finally:  # an error or an interrupt: do not leave the pool busy with the others
+                cancel_pending(jobs)
     except BrokenProcessPool:
-        _forget_pool()
         raise TactileBenchError(
             f"stage {ctx.name}: a seed's worker process died (out of memory?); "
             "set parallel_seeds: 1 to train the seeds in turn"
         ) from None
-    finally:  # an error or an interrupt: do not leave the pool busy with the other seeds
-        for job in jobs:
-            job.cancel()
     log.info(
         "stage %s: %d seeds trained, %d at a time on %d thread(s) each, in %.1f s",
         ctx.name,
