@@ -39,6 +39,7 @@ from lightning.pytorch.callbacks import Callback
 from torch.utils.data import RandomSampler, Sampler
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.hardware import use_tensor_cores
 from tactile_bench.io import json_sha256
 
 log = logging.getLogger("tactile_bench")
@@ -46,6 +47,8 @@ log = logging.getLogger("tactile_bench")
 #: recipe ``trainer:`` key (not a Trainer argument) setting the checkpoint interval
 EVERY_KEY = "checkpoint_every_n_steps"
 DEFAULT_EVERY = 100
+#: on an accelerator, losses are checked for NaN/inf this often (steps) and before each save
+DEVICE_CHECK_EVERY = 32
 CHECKPOINT_NAME = "last.ckpt"
 #: trainer settings that change how a fit is shown or saved, never what it computes
 NEUTRAL_TRAINER_KEYS = frozenset(
@@ -112,19 +115,27 @@ class ResumableSampler(Sampler[int]):
 
 
 def rng_states() -> dict[str, Any]:
-    """Global torch / numpy / Python RNG states as plain types (``weights_only`` loadable)."""
+    """Global torch (CPU, and every CUDA device's when there are any) / numpy / Python RNG
+    states as plain types (``weights_only`` loadable)."""
     kind, keys, pos, has_gauss, gauss = np.random.get_state()
     version, state, py_gauss = random.getstate()
-    return {
+    states = {
         "torch": torch.get_rng_state(),
         "numpy": [kind, torch.from_numpy(keys.astype(np.int64)), pos, has_gauss, gauss],
         "python": [version, list(state), py_gauss],
     }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        states["cuda"] = torch.cuda.get_rng_state_all()
+    return states
 
 
 def set_rng_states(states: Mapping[str, Any]) -> None:
-    """Inverse of :func:`rng_states`."""
+    """Inverse of :func:`rng_states`; a CUDA state is restored where CUDA is there to take
+    it (a checkpoint written on a GPU resumes on a CPU with the CPU's states alone)."""
     torch.set_rng_state(states["torch"])
+    if "cuda" in states and torch.cuda.is_available():
+        cuda = list(states["cuda"])[: torch.cuda.device_count()]
+        torch.cuda.set_rng_state_all(cuda)
     kind, keys, pos, has_gauss, gauss = states["numpy"]
     np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, gauss))
     version, state, py_gauss = states["python"]
@@ -169,6 +180,7 @@ class GuardedCheckpoint(Callback):
         self.fingerprint = fingerprint
         self.what = what
         self.interrupted = False
+        self._pending: list[tuple[str, int, torch.Tensor]] = []  # losses not yet checked
         self.saved_step: int | None = None
         self._next_save = self.every
         self._position: dict[str, Any] = {}
@@ -204,15 +216,16 @@ class GuardedCheckpoint(Callback):
         batch_idx: int,
     ) -> None:
         losses = _float_tensors(outputs)
-        for name, value in losses.items():
-            if not torch.isfinite(value.detach()).all():
-                self._fail(trainer, f"{name} = {float(value.detach().float().mean())}")
-        if not losses:  # manual optimisation that returns nothing: watch the weights instead
-            self._check_weights(trainer, pl_module)
+        step = trainer.global_step
+        self._pending += [(name, step, value.detach()) for name, value in losses.items()]
+        between = self._between_steps(trainer, batch_idx)
+        due = self.path is not None and between and step >= self._next_save
+        if pl_module.device.type == "cpu" or due or step % DEVICE_CHECK_EVERY == 0:
+            self._check_losses(trainer)
+            if not losses:  # manual optimisation that returns nothing: watch the weights
+                self._check_weights(trainer, pl_module)
         if getattr(trainer, "received_sigterm", False):
             self.interrupted = True
-        step = trainer.global_step
-        between = self._between_steps(trainer, batch_idx)
         due = self.interrupted or step >= self._next_save
         if self.path is not None and due and between:
             self._save(trainer, pl_module, batch_idx)
@@ -221,6 +234,7 @@ class GuardedCheckpoint(Callback):
             trainer.should_stop = True
 
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._check_losses(trainer)
         if self.path is None:
             return
         if not self.interrupted and self.saved_step != trainer.global_step:
@@ -234,19 +248,35 @@ class GuardedCheckpoint(Callback):
         last = batch_idx + 1 >= trainer.num_training_batches
         return every <= 1 or (batch_idx + 1) % every == 0 or last
 
+    def _check_losses(self, trainer: L.Trainer) -> None:
+        """Fail on the first non-finite loss since the last check. On the CPU that is every
+        step; on an accelerator every ``DEVICE_CHECK_EVERY`` steps and before every save, so
+        the host waits for the device once per check, not once per step."""
+        pending, self._pending = self._pending, []
+        if not pending:
+            return
+        means = torch.stack([value.float().mean() for _, _, value in pending])
+        finite = torch.isfinite(means).tolist()
+        if all(finite):
+            return
+        first = finite.index(False)
+        name, step, _ = pending[first]
+        self._fail(trainer, f"{name} = {float(means[first])}", step)
+
     def _check_weights(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         bad = _first_bad_weight(pl_module)
         if bad is not None:
             self._fail(trainer, f"weight {bad} is not finite")
 
-    def _fail(self, trainer: L.Trainer, problem: str) -> None:
+    def _fail(self, trainer: L.Trainer, problem: str, step: int | None = None) -> None:
         kept = (
             f"the last good checkpoint ({self.path}, step {self.saved_step}) is kept"
             if self.saved_step is not None
             else "no checkpoint had been saved yet"
         )
         raise NonFiniteLoss(
-            f"{self.what}: {problem} at step {trainer.global_step}; training stopped, {kept}. "
+            f"{self.what}: {problem} at step {trainer.global_step if step is None else step}; "
+            f"training stopped, {kept}. "
             "Lower the learning rate or check the data"
         )
 
@@ -360,15 +390,21 @@ RANK_ZERO_LOGGER = "lightning.pytorch.utilities.rank_zero"
 #: torch 2.13 deprecates ``LeafSpec``, which Lightning's ``_pytree`` still builds at every
 #: fit; a notice to Lightning's developers, not to our users
 LEAFSPEC_DEPRECATION = r"`isinstance\(treespec, LeafSpec\)` is deprecated"
+#: Lightning's hint to add DataLoader workers, given at every fit on a many-core machine
+FEW_WORKERS_HINT = r"The '\w+_dataloader' does not have many workers"
 
 
-#: what Lightning logs at every Trainer and fit on a machine without accelerators, once per
-#: training: a recipe's 25 trainings printed 75 such lines between the stages' own. A GPU
-#: or TPU that is there but unused still shows ("GPU available: True ..., used: False")
+#: what Lightning logs at every Trainer and fit, once per training (a recipe's 25 trainings
+#: printed 75 to 100 such lines between the stages' own). Each stage logs its own line
+#: naming the device and precision it runs in instead (``pipeline.runner``)
 ROUTINE_NOTICES = (
+    "Using bfloat16 Automatic Mixed Precision",
+    "Using 16bit Automatic Mixed Precision",
     LITLOGGER_TIP,
-    "GPU available: False",
-    "TPU available: False",
+    "GPU available: ",
+    "TPU available: ",
+    "HPU available: ",
+    "LOCAL_RANK: ",
     "`Trainer.fit` stopped: ",
 )
 
@@ -396,6 +432,8 @@ def lightning_notices_off() -> Iterator[None]:
                 category=FutureWarning,
                 module=r"lightning\.pytorch\.utilities\._pytree",
             )
+            # the data are tensors in memory: loader workers would only copy them
+            warnings.filterwarnings("ignore", message=FEW_WORKERS_HINT)
             yield
     finally:
         logger.removeFilter(notices)
@@ -424,6 +462,7 @@ def resumable_fit(
     ``what`` names the fit in messages. Raises ``KeyboardInterrupt`` after a clean stop.
     """
     settings = dict(settings)
+    use_tensor_cores()
     every = int(settings.pop(EVERY_KEY, DEFAULT_EVERY))
     save = bool(settings.pop("enable_checkpointing", True))  # False: no files (benchmarks)
     settings["enable_checkpointing"] = False  # Lightning's own ModelCheckpoint: not needed

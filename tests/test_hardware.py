@@ -12,7 +12,9 @@ from tactile_bench import hardware
 
 @pytest.fixture
 def probes(monkeypatch: pytest.MonkeyPatch) -> Any:
-    """Set torch's CPU bf16 probes (the real cached answer is restored afterwards)."""
+    """Set torch's CPU bf16 probes (the real cached answer is restored afterwards), on a
+    machine without a GPU (``auto`` would pick CUDA's precision where there is one)."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
 
     def set_probes(avx512_bf16: bool, amx: bool) -> None:
         monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16)
@@ -178,6 +180,8 @@ def test_machine_compute(probes: Any, monkeypatch: pytest.MonkeyPatch) -> None:
         "torch_threads": torch.get_num_threads(),
         "auto_precision": "32-true",
         "isa_caps": {},
+        "gpu": None,
+        "gpu_auto_precision": None,
     }
     probes(False, True)
     assert hardware.machine_compute()["auto_precision"] == "bf16-mixed"
@@ -198,3 +202,15 @@ def test_a_run_under_isa_caps_says_so(probes: Any, monkeypatch: pytest.MonkeyPat
     assert info["isa_caps"] == {"ONEDNN_MAX_CPU_ISA": "AVX2"}
     assert info["auto_precision"] == "32-true"
     assert machine_line(info).endswith("(instruction sets capped: ONEDNN_MAX_CPU_ISA=AVX2)")
+
+
+def test_compute_device_and_gpu_precision(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``auto`` means the GPU when there is one, for fits and for the work around them."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda: True)
+    assert hardware.compute_device(None) == torch.device("cuda")
+    assert hardware.compute_device("auto") == torch.device("cuda")
+    assert hardware.compute_device("cpu") == torch.device("cpu")
+    assert hardware.trainer_precision({}, "auto") == "bf16-mixed"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert hardware.compute_device(None) == torch.device("cpu")

@@ -12,7 +12,16 @@ PACKAGE = Path(__file__).resolve().parents[1] / "tactile_bench"
 #: layers from the bottom up; a module may import its own layer and those below it. The
 #: longest matching prefix decides (``guard.args`` is above ``guard``).
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("", "errors", "io", "hardware", "allocator", "console", "pools", "guard"),  # "": the package itself
+    (
+        "",
+        "errors",
+        "io",
+        "hardware",
+        "allocator",
+        "console",
+        "pools",
+        "guard",
+    ),  # "": the package itself
     ("geometry",),
     ("effects", "metrics"),
     ("sensor",),

@@ -1,5 +1,6 @@
 """A killed or interrupted training resumes from its checkpoint and ends exactly where an
-uninterrupted one would (same weights, bit for bit, on the same machine and thread count)."""
+uninterrupted one would (same weights, bit for bit, on the same machine and thread count, on
+the CPU; on a GPU to float tolerance, see ``_same``)."""
 
 from __future__ import annotations
 
@@ -41,9 +42,15 @@ class KillAt(Callback):
 
 
 def _same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> None:
+    """Bit for bit where the fits ran on the CPU. Where a GPU is there the fits ran on it,
+    and cuDNN's convolution kernels may sum in another order from run to run, so the resumed
+    weights agree to float tolerance there (bit identity would need deterministic kernels)."""
     assert a.keys() == b.keys()
     for key in a:
-        assert torch.equal(a[key], b[key]), key
+        if torch.cuda.is_available():
+            torch.testing.assert_close(a[key], b[key], rtol=1e-3, atol=1e-4, msg=key)
+        else:
+            assert torch.equal(a[key], b[key]), key
 
 
 def test_sampler_keeps_the_shuffle_of_a_plain_dataloader() -> None:

@@ -29,7 +29,7 @@ from torchmetrics.functional.classification import (
 from tactile_bench.classify.model import NUM_CLASSES
 from tactile_bench.classify.module import BrailleClassifier
 from tactile_bench.data.datamodule import ForegroundDataModule
-from tactile_bench.hardware import PRECISIONS, Precision, trainer_precision
+from tactile_bench.hardware import PRECISIONS, Precision, compute_device, trainer_precision
 from tactile_bench.training import ResumableSampler, fingerprint, result_settings, resumable_fit
 
 
@@ -92,7 +92,7 @@ def classifier_precision(
 ) -> Any:
     """The Lightning precision ``train_classifier`` trains ``config`` in: ``trainer_kwargs``'
     own when they set one, else ``config.precision``, ``auto`` resolved for the device."""
-    return trainer_precision({"accelerator": "cpu", **(trainer_kwargs or {})}, config.precision)
+    return trainer_precision(dict(trainer_kwargs or {}), config.precision)
 
 
 def _close_wandb(loggers: Sequence[Logger]) -> None:
@@ -186,10 +186,10 @@ def train_classifier(
     finally:
         if close_loggers:
             _close_wandb(logger_list)
-    model = model.cpu()
     if config.precise_bn_images > 0:
+        model.to(compute_device(kwargs.get("accelerator")))
         _precise_batchnorm(model, datamodule.train_set.tensors[0], config)
-    return model.eval()
+    return model.cpu().eval()
 
 
 def _new_model(
@@ -219,12 +219,13 @@ def _trainer_settings(
     logger_list: list[Logger],
     trainer_kwargs: dict[str, Any] | None,
 ) -> dict[str, Any]:
-    """The Trainer's arguments: CPU and the config's epochs, the caller's overrides on top."""
+    """The Trainer's arguments: one device (Lightning's ``auto``: the GPU when there is one)
+    and the config's epochs, the caller's overrides on top."""
     has_val = datamodule.val_set is not None
     steps_per_epoch = max(1, -(-len(datamodule.train_set) // config.batch_size))
     kwargs: dict[str, Any] = dict(
         max_epochs=config.epochs,
-        accelerator="cpu",
+        accelerator="auto",
         devices=1,
         logger=logger_list,
         default_root_dir=str(out_dir),
@@ -259,8 +260,9 @@ def recalibrate_batchnorm(model: nn.Module, fg: torch.Tensor, batch_size: int = 
         m.momentum = None  # cumulative moving average: the plain mean over batches
     model.train()
     batch_size = min(batch_size, len(fg))
+    device = next(model.parameters()).device
     for i in range(0, len(fg) - batch_size + 1, batch_size):  # full batches only
-        model(fg[i : i + batch_size].float())
+        model(fg[i : i + batch_size].to(device).float())
     for m, momentum in zip(norms, momenta, strict=True):
         m.momentum = momentum
     model.train(was_training)

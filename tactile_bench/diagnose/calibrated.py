@@ -125,11 +125,13 @@ def _buffer(text: str) -> torch.Tensor:
 class CalibratedTranslator(SimTranslator):
     """Depth -> sim image + the effects the diagnosis fitted + measured noise. Unfitted: sim.
 
-    ``trainable`` stays False: the fit is a search, not Lightning training steps.
+    ``trainable`` stays False: the fit is a search, not Lightning training steps. It renders
+    on the CPU, with the diagnosis's fitted effects.
     """
 
     name = "calibrated"
     Config = CalibratedConfig
+    computes_on_cpu = True
 
     def __init__(self, config: CalibratedConfig | dict[str, Any] | None = None) -> None:
         super().__init__(config)
@@ -300,13 +302,13 @@ class CalibratedTranslator(SimTranslator):
         if not self.fitted:
             return super().translate(depth, background, generator)
         generator = self._generator(generator)
-        background = background.float().cpu()
+        device, depth, background = depth.device, depth.cpu(), background.float().cpu()
         out = torch.empty(len(depth), 3, *depth.shape[-2:])
         for i in range(0, len(depth), self.config.chunk):
             part = slice(i, i + self.config.chunk)
             bg = background[part] if background.dim() == 4 else background
             out[part] = foreground_to_image(self._model_foreground(depth[part], generator), bg)
-        return out
+        return out.to(device)
 
     # ------------------------------------------------------------------ state
     def _load_from_state_dict(

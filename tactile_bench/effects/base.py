@@ -107,10 +107,13 @@ class OpticalScene:
 
 
 def as_tensor(value: ParamValue, like: torch.Tensor | None = None) -> torch.Tensor:
-    """A parameter value as a float tensor (keeps autograd history)."""
+    """A parameter value as a float tensor (keeps autograd history), on ``like``'s device
+    when given."""
+    device = None if like is None else like.device
     if isinstance(value, torch.Tensor):
-        return value.float() if value.dtype != torch.float32 else value
-    return torch.tensor(float(value), dtype=torch.float32)
+        value = value.float() if value.dtype != torch.float32 else value
+        return value if device is None else value.to(device)
+    return torch.tensor(float(value), dtype=torch.float32, device=device)
 
 
 class Effect(ABC):

@@ -76,7 +76,7 @@ class Vignetting(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> torch.Tensor:
-        uu, vv = pixel_grid(x.shape[-2], x.shape[-1])
+        uu, vv = pixel_grid(x.shape[-2], x.shape[-1], x.device)
         xm, ym = uu * ctx.width_mm / 2, vv * ctx.height_mm / 2
         r2 = (xm**2 + ym**2) / ((ctx.width_mm / 2) ** 2 + (ctx.height_mm / 2) ** 2)
         a = (1 - as_tensor(p["corner_loss"])).rsqrt() - 1
@@ -153,14 +153,14 @@ class GammaWhiteBalance(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> torch.Tensor:
-        one = torch.ones(())
-        wb = torch.stack([as_tensor(p["wb_r"]), one, as_tensor(p["wb_b"])]).view(1, 3, 1, 1)
-        inv_gamma = 1.0 / as_tensor(p["gamma"])
+        one = torch.ones((), device=x.device)
+        wb = torch.stack([as_tensor(p["wb_r"], x), one, as_tensor(p["wb_b"], x)]).view(1, 3, 1, 1)
+        inv_gamma = 1.0 / as_tensor(p["gamma"], x)
         if x.requires_grad or inv_gamma.requires_grad or wb.requires_grad:
             return per_sub_batch(
                 lambda x: 255.0 * (x * wb / 255.0).clamp(1e-4, 1.0) ** inv_gamma, x
             )
-        g = float(inv_gamma)
+        g = 1.0 / scalar(p["gamma"])
         return per_sub_batch(
             lambda x: (x * wb).div_(255.0).clamp_(1e-4, 1.0).pow_(g).mul_(255.0), x
         )

@@ -63,12 +63,14 @@ class SurfaceTexture(Effect):
         ctx: EffectContext,
     ) -> torch.Tensor:
         n, _, h, w = x.shape
-        phase = torch.rand(n, generator=generator) * 2 * math.pi
-        rough = randn((n, 1, h, w), generator)
+        # drawn on the CPU (the same numbers on every device), then moved to the height's
+        phase = (torch.rand(n, generator=generator) * 2 * math.pi).to(x.device)
+        rough = randn((n, 1, h, w), generator).to(x.device)
         if not ctx.stochastic:
             phase, rough = phase * 0, rough * 0
         yaw = ctx.yaw_deg if ctx.yaw_deg is not None else torch.zeros(n)
-        ang = torch.deg2rad(as_tensor(p["bead_angle_deg"]).detach() + yaw.detach().float())
+        yaw = yaw.detach().float().to(x.device)
+        ang = torch.deg2rad(as_tensor(p["bead_angle_deg"], x).detach() + yaw)
         return per_sub_batch(lambda *a: self._texture(*a, p, ctx), x, ang, phase, rough)
 
     @staticmethod
@@ -83,7 +85,7 @@ class SurfaceTexture(Effect):
         h, w = x.shape[-2:]
         # bead phase pi s / pitch + phase, s = x cos + y sin, is a(x) + b(y): sin(a + b) is a
         # rank-2 product, one small batched matmul instead of a full-size sin
-        uu, vv = pixel_grid(h, w)
+        uu, vv = pixel_grid(h, w, x.device)
         k = math.pi / scalar(p["bead_pitch_mm"])
         a = (uu[0] * ctx.width_mm / 2)[None] * (k * torch.cos(ang))[:, None] + phase[:, None]
         b = (vv[:, 0] * ctx.height_mm / 2)[None] * (k * torch.sin(ang))[:, None]

@@ -213,13 +213,16 @@ def _conv1d_slices(x: torch.Tensor, k: torch.Tensor, dim: int) -> torch.Tensor:
 
 
 @lru_cache(maxsize=32)
-def pixel_grid(h: int, w: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Normalised pixel-centre coordinates u (right), v (down) in [-1, 1], each (H, W).
+def pixel_grid(
+    h: int, w: int, device: torch.device | str = "cpu"
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Normalised pixel-centre coordinates u (right), v (down) in [-1, 1], each (H, W), on
+    ``device``.
 
-    Cached per size: treat the tensors as read-only.
+    Cached per size and device: treat the tensors as read-only.
     """
-    v = (torch.arange(h, dtype=torch.float32) + 0.5) / h * 2 - 1
-    u = (torch.arange(w, dtype=torch.float32) + 0.5) / w * 2 - 1
+    v = (torch.arange(h, dtype=torch.float32, device=device) + 0.5) / h * 2 - 1
+    u = (torch.arange(w, dtype=torch.float32, device=device) + 0.5) / w * 2 - 1
     vv, uu = torch.meshgrid(v, u, indexing="ij")
     return uu, vv
 
@@ -229,7 +232,7 @@ def shift_mm(
 ) -> torch.Tensor:
     """Sample x at (p + d): content moves by -d. dx, dy broadcast to (N,), mm, image axes."""
     n, _, h, w = x.shape
-    uu, vv = pixel_grid(h, w)
+    uu, vv = pixel_grid(h, w, x.device)
     du = (2.0 * dx_mm / ctx.width_mm).reshape(-1, 1, 1)
     dv = (2.0 * dy_mm / ctx.height_mm).reshape(-1, 1, 1)
     grid = torch.stack([(uu + du).expand(n, h, w), (vv + dv).expand(n, h, w)], dim=-1)

@@ -42,13 +42,15 @@ CONTACT_OFFSET_MM = 0.05
 def new_scene(
     height: torch.Tensor, background: torch.Tensor, delta: torch.Tensor | None = None
 ) -> OpticalScene:
-    """A scene over ``background`` (3|N, 3, H, W) under unit gain; no colour change by default."""
+    """A scene over ``background`` (3|N, 3, H, W) under unit gain, on ``height``'s device; no
+    colour change by default."""
     n, _, h, w = height.shape
+    background = background.to(height.device)
     return OpticalScene(
         height=height,
         background=background if background.dim() == 4 else background[None],
-        delta=delta if delta is not None else torch.zeros(n, 3, h, w),
-        gain=torch.ones(1, 3, 1, 1),
+        delta=delta if delta is not None else height.new_zeros(n, 3, h, w),
+        gain=height.new_ones(1, 3, 1, 1),
     )
 
 
@@ -116,22 +118,26 @@ def fitted_response(
 
 
 def response_fields(weights: torch.Tensor, h: int, w: int) -> torch.Tensor:
-    """(F, 3, H, W): each feature's per-channel position field for ``weights`` (F, 3, 6)."""
-    uu, vv = pixel_grid(h, w)
+    """(F, 3, H, W): each feature's per-channel position field for ``weights`` (F, 3, 6),
+    on ``weights``' device."""
+    uu, vv = pixel_grid(h, w, weights.device)
     return torch.einsum("fcq,hwq->fchw", weights, _position_basis(uu, vv)).contiguous()
 
 
 @lru_cache(maxsize=8)
-def _response_fields(h: int, w: int, sensor: str = "digit") -> torch.Tensor:
-    """A known sensor's ``response_fields``, cached per size."""
-    return response_fields(sensor_optics(sensor)[0], h, w)
+def _response_fields(
+    h: int, w: int, sensor: str = "digit", device: torch.device | str = "cpu"
+) -> torch.Tensor:
+    """A known sensor's ``response_fields``, cached per size and device."""
+    return response_fields(sensor_optics(sensor)[0].to(device), h, w)
 
 
 def fitted_response_image(
     gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor, sensor: str = "digit"
 ) -> torch.Tensor:
     """A real sensor's colour change (N, 3, H, W) for slope maps (N, H, W) over the view."""
-    return response_image(gx, gy, contact, _response_fields(gx.shape[-2], gx.shape[-1], sensor))
+    fields = _response_fields(gx.shape[-2], gx.shape[-1], sensor, gx.device)
+    return response_image(gx, gy, contact, fields)
 
 
 def response_image(
@@ -226,11 +232,13 @@ class LedDiffusivity(Effect):
         generator: torch.Generator | None,
         ctx: EffectContext,
     ) -> OpticalScene:
-        g = torch.stack([as_tensor(p[k]) for k in ("gain_r", "gain_g", "gain_b")])
-        xt = as_tensor(p["crosstalk"])
-        mix = (1 - xt) * torch.eye(3) + xt / 2 * (torch.ones(3, 3) - torch.eye(3))
+        like = x.delta
+        g = torch.stack([as_tensor(p[k], like) for k in ("gain_r", "gain_g", "gain_b")])
+        xt = as_tensor(p["crosstalk"], like)
+        eye = torch.eye(3, device=like.device)
+        mix = (1 - xt) * eye + xt / 2 * (1 - eye)
         # gain, diffusion and crosstalk on the response as one 3 x 3 colour matrix
-        mix = mix * (g * (1 - as_tensor(p["diffusion"])))[None, :]
+        mix = mix * (g * (1 - as_tensor(p["diffusion"], like)))[None, :]
         delta = torch.einsum("ij,njhw->nihw", mix, x.delta)
         return x.replace(background=x.background * g.view(1, 3, 1, 1), delta=delta)
 
@@ -354,9 +362,9 @@ class UnitBackground(Effect):
     ) -> OpticalScene:
         bg = x.background
         n, _, h, w = bg.shape
-        uu, vv = pixel_grid(h, w)
+        uu, vv = pixel_grid(h, w, bg.device)
         xm, ym = uu * ctx.width_mm / 2, vv * ctx.height_mm / 2
-        a = torch.deg2rad(as_tensor(p["rotation_deg"]))
+        a = torch.deg2rad(as_tensor(p["rotation_deg"], bg))
         # sample the field where this unit's pixel came from: inverse rotate, then unshift
         xs = torch.cos(a) * xm + torch.sin(a) * ym - as_tensor(p["shift_x_mm"])
         ys = -torch.sin(a) * xm + torch.cos(a) * ym - as_tensor(p["shift_y_mm"])
@@ -368,7 +376,7 @@ class UnitBackground(Effect):
             padding_mode="border",
             align_corners=False,
         )
-        tint = torch.stack([as_tensor(p[k]) for k in ("tint_r", "tint_g", "tint_b")])
+        tint = torch.stack([as_tensor(p[k], bg) for k in ("tint_r", "tint_g", "tint_b")])
         return x.replace(background=warped * tint.view(1, 3, 1, 1))
 
 
@@ -407,7 +415,8 @@ class GelWear(Effect):
         else:  # a unit's wear is fixed: compute it once per size and parameter set
             key = tuple((k, scalar(v)) for k, v in sorted(p.items()))
             transmission, response = _cached_wear_fields(h, w, ctx.width_mm, ctx.height_mm, key)
-        return x.replace(gain=x.gain * transmission, delta=x.delta * response)
+        device = x.delta.device
+        return x.replace(gain=x.gain * transmission.to(device), delta=x.delta * response.to(device))
 
 
 @lru_cache(maxsize=8)

@@ -19,7 +19,12 @@ from typing import Any
 import tactile_bench
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.outputs import OutputLock, check_output_dir
-from tactile_bench.hardware import resolve_precision, trainer_device
+from tactile_bench.hardware import (
+    compute_device,
+    describe_device,
+    resolve_precision,
+    trainer_device,
+)
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
 from tactile_bench.pipeline.provenance import InputHasher, run_record
 from tactile_bench.pipeline.recipe import Recipe, Stage
@@ -172,6 +177,14 @@ def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[
         (directory / DONE).unlink(missing_ok=True)
         directory.mkdir(parents=True, exist_ok=True)
         log.info("stage %s (%s): running in %s", stage.name, stage.kind.name, directory)
+        if stage.kind.precision_dependent:
+            device = compute_device(recipe.trainer.get("accelerator"))
+            log.info(
+                "stage %s: networks on %s, precision auto = %s",
+                stage.name,
+                describe_device(device),
+                resolve_precision("auto", device.type),
+            )
         trainer = dict(recipe.trainer)
         if not progress:  # --no-progress silences Lightning's bars too (not in any key)
             trainer.setdefault("enable_progress_bar", False)

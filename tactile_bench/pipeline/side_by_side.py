@@ -38,6 +38,7 @@ import torch
 from tactile_bench.allocator import keep_freed_memory
 from tactile_bench.console import configure_logging
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.hardware import use_tensor_cores
 from tactile_bench.pipeline.memory import peak_rss_mib
 from tactile_bench.pipeline.recipe import Stage
 from tactile_bench.pipeline.stages.base import StageContext
@@ -52,6 +53,7 @@ Ran = tuple[dict[str, str], dict[str, Any], float, float]
 def execute(stage: Stage, ctx: StageContext) -> Ran:
     """Run one stage here; its errors name it, and an interrupt says what was kept."""
     start = time.perf_counter()
+    use_tensor_cores()
     try:
         outputs, metrics = stage.kind.run(ctx)
     except TactileBenchError as exc:

@@ -108,7 +108,7 @@ class SimOptics:
         """
         _, _, hh, ww = depth.shape
         nx, ny, nz = _normal_components(depth, gel)  # each (N, H, W)
-        px, py = _pixel_centres(hh, ww, gel, depth.dtype)
+        px, py = _pixel_centres(hh, ww, gel, depth)
         channels = self._phong(nx, ny, nz, px, py[:, None], depth[:, 0])
         return torch.stack(channels, 1).add_(self.ambient).mul_(self.intensity)
 
@@ -155,11 +155,11 @@ class SimOptics:
         when differentiating through the depth.
         """
         n, _, hh, ww = depth.shape
-        flat = _flat_shading(self, gel.width_mm, gel.height_mm, hh, ww)  # (3, H, W)
+        flat = _flat_shading(self, gel.width_mm, gel.height_mm, hh, ww, depth.device)
         d_row, d_col, idx, dense = _touched(depth, gel)
         if dense:
             inv = torch.rsqrt(d_row * d_row + d_col * d_col + 1)
-            px, py = _pixel_centres(hh, ww, gel, depth.dtype)
+            px, py = _pixel_centres(hh, ww, gel, depth)
             ch = self._phong(-d_col * inv, d_row * inv, inv, px, py[:, None], depth[:, 0])
             shaded = torch.stack(ch, 1).add_(self.ambient).mul_(self.intensity)
             return shaded.sub_(flat)
@@ -169,7 +169,7 @@ class SimOptics:
         pix = idx % (hh * ww)
         g_row, g_col = d_row.reshape(-1)[idx], d_col.reshape(-1)[idx]
         inv = torch.rsqrt(g_row * g_row + g_col * g_col + 1)
-        px, py = _pixel_centres(hh, ww, gel, depth.dtype)
+        px, py = _pixel_centres(hh, ww, gel, depth)
         ch = self._phong(
             -g_col * inv, g_row * inv, inv, px[pix % ww], py[pix // ww], depth.reshape(-1)[idx]
         )
@@ -195,7 +195,7 @@ class SimOptics:
         """
         n, _, hh, ww = depth.shape
         d_row, d_col, idx, dense = _touched(depth, gel)
-        px, py = _pixel_centres(hh, ww, gel, depth.dtype)
+        px, py = _pixel_centres(hh, ww, gel, depth)
         lights, colours = lights.to(depth.dtype), colours.to(depth.dtype)
         if dense:
             lit = [tuple(lights[:, i, k, None, None] for k in range(3)) for i in range(3)]
@@ -290,7 +290,7 @@ class SimOptics:
             part = _gaussian_blur(change, sigma).add_(bg)
             if noisy:
                 noise = torch.randn(part.shape, generator=generator, dtype=part.dtype)
-                part.add_(noise.mul_(self.noise_std))
+                part.add_(noise.to(part.device).mul_(self.noise_std))
             image[k : k + _CHUNK] = part.clamp_(0, 255)
         return image
 
@@ -300,14 +300,17 @@ def _touched(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, bool]:
     """Depth gradients (N, H, W) in mm/mm, the flat indices of the pixels whose shading can
     differ from the flat gel's (the pixel or a neighbour pressed), and whether shading all
-    pixels densely is cheaper (most are touched) or needed (differentiating the depth)."""
+    pixels densely is cheaper (most are touched; any device but the CPU, where finding the
+    touched pixels would wait for the device and a dense batch is one wide kernel) or needed
+    (differentiating the depth). The indices are empty when dense."""
     hh, ww = depth.shape[-2:]
     dx, dy = gel.width_mm / ww, gel.height_mm / hh
     d_row, d_col = torch.gradient(depth[:, 0], spacing=(dy, dx), dim=(-2, -1))
+    if depth.requires_grad or depth.device.type != "cpu":
+        return d_row, d_col, depth.new_empty(0, dtype=torch.int64), True
     active = (depth[:, 0] != 0).logical_or_(d_row != 0).logical_or_(d_col != 0)
     idx = active.view(-1).nonzero().squeeze(1)
-    dense = depth.requires_grad or idx.numel() > _DENSE_ABOVE * active.numel()
-    return d_row, d_col, idx, dense
+    return d_row, d_col, idx, idx.numel() > _DENSE_ABOVE * active.numel()
 
 
 def _skip_noise(optics: SimOptics, n: int, hw: tuple[int, int], generator: torch.Generator) -> None:
@@ -318,11 +321,13 @@ def _skip_noise(optics: SimOptics, n: int, hw: tuple[int, int], generator: torch
 
 
 def _pixel_centres(
-    hh: int, ww: int, gel: GelSpec, dtype: torch.dtype
+    hh: int, ww: int, gel: GelSpec, like: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(px (W,), py (H,)) mm of the pixel centres in the sensor frame (rows run towards -y)."""
-    py = -((torch.arange(hh, dtype=dtype) + 0.5) / hh - 0.5) * gel.height_mm
-    px = ((torch.arange(ww, dtype=dtype) + 0.5) / ww - 0.5) * gel.width_mm
+    """(px (W,), py (H,)) mm of the pixel centres in the sensor frame (rows run towards -y),
+    with ``like``'s dtype and device."""
+    kw = {"dtype": like.dtype, "device": like.device}
+    py = -((torch.arange(hh, **kw) + 0.5) / hh - 0.5) * gel.height_mm
+    px = ((torch.arange(ww, **kw) + 0.5) / ww - 0.5) * gel.width_mm
     return px, py
 
 
@@ -346,8 +351,8 @@ def _power(x: torch.Tensor, exponent: float) -> torch.Tensor:
 
 @lru_cache(maxsize=16)
 def _flat_shading(
-    optics: SimOptics, width_mm: float, height_mm: float, hh: int, ww: int
+    optics: SimOptics, width_mm: float, height_mm: float, hh: int, ww: int, device: torch.device
 ) -> torch.Tensor:
-    """``optics.shade`` of the undeformed gel (3, H, W); cached, treat as read-only."""
+    """``optics.shade`` of the undeformed gel (3, H, W) on ``device``; cached, read-only."""
     gel = GelSpec(width_mm, height_mm, ww, 1)
-    return optics.shade(torch.zeros(1, 1, hh, ww), gel)[0]
+    return optics.shade(torch.zeros(1, 1, hh, ww, device=device), gel)[0]

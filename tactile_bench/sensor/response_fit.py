@@ -32,7 +32,7 @@ def response_design(surface: torch.Tensor, gel_mm: tuple[float, float]) -> torch
     gx, gy = surface_gradient(surface.float(), ctx)
     contact = (surface.float() / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
     feats = _features(gx[:, 0], gy[:, 0], contact[:, 0])  # (N, H, W, F)
-    uu, vv = pixel_grid(*surface.shape[-2:])
+    uu, vv = pixel_grid(*surface.shape[-2:], surface.device)
     pos = _position_basis(uu, vv)  # (H, W, 6)
     return (feats[..., :, None] * pos[None, :, :, None, :]).flatten(-2)
 

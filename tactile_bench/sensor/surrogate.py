@@ -233,7 +233,7 @@ class SurrogateDigit:
         h = self._apply_effects_on("geometry", height.float(), generator, ctx)
         with timed_span("real.resize"):
             surface = _resize(h.clamp(min=0.0), gel.size)
-        bg = digit_background(gel.size, self.unit)
+        bg = digit_background(gel.size, self.unit).to(surface.device)
         # skipped when optical_response replaces it outright (it would be multiplied by 0)
         with timed_span("real.sim_shading"):
             delta = None if self._sim_shading_replaced() else self._sim_delta(surface, bg, gel)

@@ -80,6 +80,9 @@ class Translator(L.LightningModule):
     name: ClassVar[str] = ""
     Config: ClassVar[type[TranslatorConfig]] = TranslatorConfig
     trainable: ClassVar[bool] = True
+    #: True where ``translate`` computes on the CPU whatever the translator's device (its
+    #: output still lands on the input's device)
+    computes_on_cpu: ClassVar[bool] = False
 
     def __init__(self, config: TranslatorConfig | dict[str, Any] | None = None) -> None:
         super().__init__()
@@ -177,14 +180,19 @@ class Translator(L.LightningModule):
         background: torch.Tensor,
         generator: torch.Generator | None = None,
     ) -> torch.Tensor:
-        """Depth plus any sensor's no-contact frame -> image in 0..255."""
+        """Depth plus any sensor's no-contact frame -> image in 0..255, on ``depth``'s device.
+
+        The translator computes on its own device (``.to(device)`` moves it); random draws
+        come from ``generator`` on the CPU, so a seed gives the same draws on every device.
+        """
         was_training = self.training
         self.eval()
         try:
-            foreground = self.translate_foreground(depth.to(self.device), generator)
+            foreground = self.translate_foreground(depth.to(self.device), generator).float()
         finally:
             self.train(was_training)
-        return foreground_to_image(foreground.float().cpu(), background.float().cpu())
+        image = foreground_to_image(foreground, background.float().to(foreground.device))
+        return image.to(depth.device)
 
     def save(self, path: str | Path) -> Path:
         """Write config and weights atomically, tagged with the translator name and format."""

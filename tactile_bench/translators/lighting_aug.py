@@ -246,17 +246,19 @@ class LightingAugTranslator(SimTranslator):
     ) -> torch.Tensor:
         """Background + randomised contact change + camera noise, clamped: (N, 3, S, S)."""
         generator = self._generator(generator)
-        depth, background = depth.float().cpu(), background.float().cpu()
+        device = depth.device
+        depth, background = depth.float(), background.float().to(device)
         gel = GelSpec(size=depth.shape[-1])
         if self.config.mode == "physical":
+            # drawn on the CPU (the same lights on every device), shaded on the depth's
             lights, colours = self.draw_lights(len(depth), generator)
-            change = self.optics.contact_change(depth, gel, lights, colours)
+            change = self.optics.contact_change(depth, gel, lights.to(device), colours.to(device))
         else:
             change = self._augmented_change(depth, background, gel, generator)
         image = change.add_(background)
-        std = self.pixel_noise_std
-        if bool(std.any()):
-            noise = torch.randn(image.shape, generator=generator)
+        std = self.pixel_noise_std.to(device)
+        if bool(self.pixel_noise_std.any()):
+            noise = torch.randn(image.shape, generator=generator).to(device)
             image.add_(noise.mul_(std.view(1, 3, 1, 1) * 255.0))
         return image.clamp_(0, 255)
 

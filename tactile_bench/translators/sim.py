@@ -40,7 +40,7 @@ class SimTranslator(Translator):
     def translate_foreground(
         self, depth: torch.Tensor, generator: torch.Generator | None = None
     ) -> torch.Tensor:
-        background = sim_background(depth.shape[-1])
+        background = sim_background(depth.shape[-1]).to(depth.device)
         image = self.optics.render(depth, background, self._generator(generator))
         return image_to_foreground(image, background)
 
@@ -51,4 +51,5 @@ class SimTranslator(Translator):
         background: torch.Tensor,
         generator: torch.Generator | None = None,
     ) -> torch.Tensor:
-        return self.optics.render(depth.float(), background.float(), self._generator(generator))
+        background = background.float().to(depth.device)
+        return self.optics.render(depth.float(), background, self._generator(generator))

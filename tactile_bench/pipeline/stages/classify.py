@@ -33,7 +33,7 @@ from tactile_bench.data.braille import SECOND_UNIT_SET, BrailleSet
 from tactile_bench.data.datamodule import stratified_split, stratified_subset
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
-from tactile_bench.hardware import Precision
+from tactile_bench.hardware import Precision, compute_device
 from tactile_bench.io import atomic_torch_save, atomic_write_json, load_npz
 from tactile_bench.pipeline.loggers import make_loggers
 from tactile_bench.pipeline.stages.base import (
@@ -347,8 +347,10 @@ def _score_seeds(
     """Each seed's scores on real and sim test, the second unit and its held-out images;
     its model saved as ``model_seed<seed>.pt``."""
     config: ClassifyConfig = ctx.config
+    device = compute_device(ctx.trainer.get("accelerator"))
     per_seed = []
     for seed, (model, held_idx) in zip(config.seeds, trained, strict=True):
+        model.to(device)  # scored where it trained; saved from the CPU below
         heldout = (
             evaluate(model, foreground[held_idx], labels[held_idx], num_classes=n_classes)
             if len(held_idx)
@@ -370,7 +372,7 @@ def _score_seeds(
                 "heldout": heldout,
             }
         )
-        save_classifier(model, ctx.directory / f"model_seed{seed}.pt")
+        save_classifier(model.cpu(), ctx.directory / f"model_seed{seed}.pt")
     return per_seed
 
 

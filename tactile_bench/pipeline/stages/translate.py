@@ -19,6 +19,7 @@ from tqdm.auto import tqdm
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.pixels import to_uint8
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.hardware import compute_device
 from tactile_bench.io import atomic_write_json, atomic_write_npz
 from tactile_bench.metrics.image import ssim_mse
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
@@ -76,7 +77,7 @@ def _translator(ctx: StageContext) -> Any:
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: TranslateConfig = ctx.config
     data = ctx.input("data")
-    translator = _translator(ctx)
+    translator = _translator(ctx).to(compute_device(ctx.trainer.get("accelerator")))
     generator = torch.Generator().manual_seed(ctx.seed)
     outputs: dict[str, str] = {}
     metrics: dict[str, Any] = {

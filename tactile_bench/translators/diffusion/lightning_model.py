@@ -169,8 +169,10 @@ class DiffusionTranslator(Translator):
         """bf16 autocast for sampling iff the resolved precision is bf16. Training has none
         of its own: the Trainer's precision (``fit_pairs``) autocasts the whole step, so an
         explicit ``trainer: {precision: ...}`` is never undone by a nested autocast here."""
-        enabled = self.inference_precision() == "bf16-mixed"
-        return torch.autocast(self.device.type, torch.bfloat16, enabled=enabled)
+        device = self.device.type
+        enabled = self.inference_precision() == "bf16-mixed" and device in ("cpu", "cuda")
+        autocast_device = device if device in ("cpu", "cuda") else "cpu"  # meta: shapes only
+        return torch.autocast(autocast_device, torch.bfloat16, enabled=enabled)
 
     @property
     def inference_unet(self) -> UNet2DModel:
