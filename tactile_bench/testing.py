@@ -37,6 +37,46 @@ def tiny_pairs(n: int = 8, size: int = 32, seed: int = 0) -> tuple[torch.Tensor,
     return depth, foreground
 
 
+TINY_DIFFUSION = {"preset": "tiny", "image_size": 32, "max_steps": 2, "batch_size": 4}
+TINY_CLASSIFIER = {"width": 4, "epochs": 1, "batch_size": 8}
+
+
+def shrink_recipe(doc: dict[str, Any]) -> dict[str, Any]:
+    """A recipe document (parsed YAML) with every size made tiny and its stages, inputs and
+    rows kept: the chain a user runs, in seconds on a CPU (tests of shipped recipes)."""
+    for stage in doc["stages"]:
+        config = stage.setdefault("config", {})
+        kind = stage["kind"]
+        if kind == "braille_data":
+            config.update(
+                chars="ABC",
+                n_finetune=45,  # 20% of it: 9, enough for lighting_aug's noise estimate (8)
+                n_test=12,
+                n_classifier=48,
+                n_classifier_test=12,
+                image_size=32,
+                second_unit="digit-b",
+            )
+        elif kind == "ycb_slide_data":
+            config.update(n_pairs=24, objects=["005_tomato_soup_can"], image_size=32)
+        elif kind == "fit_translator":
+            small = TINY_DIFFUSION if config["translator"] == "diffusion" else {"max_steps": 2}
+            if config["translator"] == "calibrated":  # one candidate keeps its diagnosis short
+                small = {"candidates": ["defocus_blur"]}
+            config["translator_config"] = {
+                **config.get("translator_config", {}),  # e.g. lighting_aug's mode: image
+                **small,
+                "batch_size": 4,
+            }
+        elif kind == "translate" and stage["name"].startswith("translate_diffusion"):
+            config["translator_config"] = {**config.get("translator_config", {}), "steps": 2}
+        elif kind == "compare_translators":
+            config["encoder_steps"] = 2
+        elif kind == "classify":
+            config.update(seeds=[0, 1], classifier=TINY_CLASSIFIER, finetune_epochs=1)
+    return doc
+
+
 class TranslatorContract:
     """Construct, fit a few steps, translate, save/load, determinism: for one registered name."""
 

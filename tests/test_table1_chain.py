@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Any
 
 import pytest
 import torch
@@ -20,44 +19,9 @@ from tactile_bench.cli import main
 from tactile_bench.data.braille import SECOND_UNIT_SET, BrailleSet
 from tactile_bench.pipeline.recipe import load_recipe
 from tactile_bench.report.table import EXTRA_ROWS, PAPER_TABLE
+from tactile_bench.testing import shrink_recipe
 
 REPO = Path(__file__).resolve().parents[1]
-TINY_DIFFUSION = {"preset": "tiny", "image_size": 32, "max_steps": 2, "batch_size": 4}
-TINY_CLASSIFIER = {"width": 4, "epochs": 1, "batch_size": 8}
-
-
-def _shrink(doc: dict[str, Any]) -> dict[str, Any]:
-    for stage in doc["stages"]:
-        config = stage.setdefault("config", {})
-        kind = stage["kind"]
-        if kind == "braille_data":
-            config.update(
-                chars="ABC",
-                n_finetune=45,  # 20% of it: 9, enough for lighting_aug's noise estimate (8)
-                n_test=12,
-                n_classifier=48,
-                n_classifier_test=12,
-                image_size=32,
-                second_unit="digit-b",
-            )
-        elif kind == "ycb_slide_data":
-            config.update(n_pairs=24, objects=["005_tomato_soup_can"], image_size=32)
-        elif kind == "fit_translator":
-            small = TINY_DIFFUSION if config["translator"] == "diffusion" else {"max_steps": 2}
-            if config["translator"] == "calibrated":  # one candidate keeps its diagnosis short
-                small = {"candidates": ["defocus_blur"]}
-            config["translator_config"] = {
-                **config.get("translator_config", {}),  # e.g. lighting_aug's mode: image
-                **small,
-                "batch_size": 4,
-            }
-        elif kind == "translate" and stage["name"] == "translate_diffusion":
-            config["translator_config"] = {"steps": 2}
-        elif kind == "compare_translators":
-            config["encoder_steps"] = 2
-        elif kind == "classify":
-            config.update(seeds=[0, 1], classifier=TINY_CLASSIFIER, finetune_epochs=1)
-    return doc
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +29,7 @@ def table_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     tmp = tmp_path_factory.mktemp("table1")
     doc = yaml.safe_load((REPO / "recipes" / "table1.yaml").read_text())
     recipe = tmp / "table1_tiny.yaml"
-    recipe.write_text(yaml.safe_dump(_shrink(doc)))
+    recipe.write_text(yaml.safe_dump(shrink_recipe(doc)))
     run_dir = tmp / "run"
     assert main(["fit", str(recipe), "--run-dir", str(run_dir), "--no-progress"]) == 0
     return run_dir
