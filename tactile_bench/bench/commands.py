@@ -24,6 +24,7 @@ def _cmd_bench(ns: argparse.Namespace) -> int:
         sections=tuple(ns.only or SECTIONS),
         progress=not ns.no_progress,
         command=" ".join(["python -m tactile_bench", *sys.argv[1:]]),
+        device=ns.device,
     )
     print(f"\nwrote {ns.out}/bench.json and {ns.out}/bench.md ({result['wall_s']:.0f} s)")
     if "sampling_details" in result:
@@ -68,8 +69,14 @@ def register(subparsers: Any) -> None:
         "--only",
         nargs="*",
         metavar="SECTION",
-        help="startup, simulation, sampling, threads, training, scaling, jpeg (default: "
-        "all; the simulation's 1x/2x/4x rows come with simulation)",
+        help="startup, simulation, sampling, threads, training, scaling, jpeg, device "
+        "(default: all but device; the simulation's 1x/2x/4x rows come with simulation)",
+    )
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="also time sampling and training on this device (cuda, cuda:1) beside the CPU: "
+        "images/s, peak device memory, GPU busy share (the device section)",
     )
     p.add_argument("--repeats", type=int, help="timed repetitions per figure")
     p.add_argument("--ddpm-images", type=int, help="test contacts sampled by DDPM-500")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from tactile_bench.bench.device import device_markdown
+
 _PHASE_ORDER = {"depth": 0, "sim_image": 1, "real_image": 2}
 NONLINEAR = 0.15  # |time(kx) / (k time(1x)) - 1| above this is called out as not linear
 
@@ -527,4 +529,6 @@ def render_markdown(r: dict[str, Any]) -> str:
         lines += _scaling(r)
     if "jpeg" in r:
         lines += _jpeg(r)
+    if "device" in r:
+        lines += device_markdown(r["device"])
     return "\n".join(lines).rstrip() + "\n"

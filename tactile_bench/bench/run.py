@@ -29,6 +29,7 @@ import torch
 
 from tactile_bench import allocator
 from tactile_bench.bench import jpeg, sampling, simulation, startup, training
+from tactile_bench.bench.device import DeviceBenchSizes, check_device, device_rows
 from tactile_bench.bench.report import render_markdown
 from tactile_bench.bench.threads import thread_settings
 from tactile_bench.bench.timing import torch_threads
@@ -44,6 +45,8 @@ from tactile_bench.sensor.surrogate import SurrogateDigit
 from tactile_bench.translators.diffusion import DiffusionConfig, DiffusionTranslator
 
 SECTIONS = ("startup", "simulation", "sampling", "threads", "training", "scaling", "jpeg")
+#: sections run only when asked for (``--only``, or ``--device`` other than the CPU)
+OPTIONAL_SECTIONS = ("device",)
 # inference settings the bench applies to a loaded checkpoint: the shipped defaults
 INFERENCE_KEYS = ("sampler", "steps", "sample_batch_size", "precision", "channels_last")
 # what the default sampler must reach (issue 8): vs DDPM-500 measured in the same run
@@ -251,12 +254,18 @@ def run_bench(
     threads: int | None = None,
     progress: bool = True,
     command: str | None = None,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """Run the chosen sections, write ``bench.json`` and ``bench.md`` in ``out_dir``.
 
     ``command`` is the command line to print in bench.md (the CLI passes its own).
+    ``device`` other than ``cpu`` adds the ``device`` section: its rows on that device
+    beside the CPU's.
     """
     _check_request(sections, diffusion, braille)
+    accelerator = check_device(device)
+    if accelerator.type != "cpu" and "device" not in sections:
+        sections = (*sections, "device")
     started = time.perf_counter()
     result: dict[str, Any] = {
         "config": _jsonable(dataclasses.asdict(cfg)),
@@ -283,6 +292,13 @@ def run_bench(
             _model_sections(step, result, cfg, sections, data, diffusion, progress)
         if {"training", "scaling"} & set(sections):
             _training_sections(step, result, cfg, sections, data["finetune"], progress)
+        if "device" in sections:
+            sizes = DeviceBenchSizes.quick() if cfg.quick else DeviceBenchSizes()
+            devices = [torch.device("cpu"), *([accelerator] if accelerator.type != "cpu" else [])]
+            result["device"] = step(
+                "sampling and training on " + ", ".join(str(d) for d in devices),
+                lambda: device_rows(devices, sizes),
+            )
         if "jpeg" in sections:
             result["jpeg"] = step(
                 "JPEG codecs: ours, kornia's, libjpeg",
@@ -304,9 +320,10 @@ def run_bench(
 
 def _check_request(sections: tuple[str, ...], diffusion: str | None, braille: str | None) -> None:
     """Refuse unknown sections and missing inputs before minutes of measuring, not after."""
-    unknown = sorted(set(sections) - set(SECTIONS))
+    known = [*SECTIONS, *OPTIONAL_SECTIONS]
+    unknown = sorted(set(sections) - set(known))
     if unknown:
-        raise TactileBenchError(f"--only: unknown sections {unknown}; known: {list(SECTIONS)}")
+        raise TactileBenchError(f"--only: unknown sections {unknown}; known: {known}")
     for flag, path in (("--diffusion", diffusion), ("--braille", braille)):
         if path and not Path(path).exists():
             raise TactileBenchError(f"{flag} {path}: no such file or folder")
