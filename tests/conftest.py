@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from tactile_bench.testing import available_devices
+
 REPO = Path(__file__).resolve().parents[1]
 
 os.environ.setdefault("WANDB_MODE", "offline")
@@ -29,3 +31,10 @@ def one_torch_thread() -> Iterator[None]:
 def repo() -> Path:
     """The repository root (recipes/, plugins/)."""
     return REPO
+
+
+@pytest.fixture(params=available_devices())
+def device(request: pytest.FixtureRequest) -> torch.device:
+    """Each device this machine has: the CPU always, CUDA where there is a GPU (a test
+    that takes it runs once a device)."""
+    return torch.device(request.param)

@@ -4,7 +4,8 @@ Two checks. On ``meta`` tensors (shapes, no values) a tensor made on the CPU ins
 fails at once, so this file catches what a GPU would catch, on a machine without one; steps
 that need values (a data-dependent index, a flag read back) cannot run on ``meta`` and are
 left to the second check. The ``device`` fixture runs the same kernels on every device this
-machine has (the CPU, and CUDA where there is a GPU) against the CPU's result.
+machine has (the CPU, and CUDA where there is a GPU; ``tests/conftest.py``) against the
+CPU's result.
 """
 
 from __future__ import annotations
@@ -17,16 +18,11 @@ from tactile_bench.effects import EFFECTS
 from tactile_bench.effects.base import EffectContext, OpticalScene
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
-from tactile_bench.testing import available_devices, tiny_pairs
+from tactile_bench.testing import tiny_pairs
 
 META = torch.device("meta")
 SIZE = 32
 IMAGE_EFFECTS = sorted(n for n, e in EFFECTS.items() if e.acts_on != "pose")
-
-
-@pytest.fixture(params=available_devices())
-def device(request: pytest.FixtureRequest) -> torch.device:
-    return torch.device(request.param)
 
 
 def _effect_input(name: str, device: torch.device, seed: int = 0) -> torch.Tensor | OpticalScene:
@@ -104,3 +100,13 @@ def test_classifier_keeps_meta_inputs_on_meta() -> None:
     model = BrailleClassifier(width=8).to(META)
     logits = model(torch.zeros(4, 3, SIZE, SIZE, device=META))
     assert logits.device == META and logits.shape[0] == 4
+
+
+def test_classifier_on_every_device_matches_the_cpu(device: torch.device) -> None:
+    model = BrailleClassifier(width=8).eval()
+    x, _ = tiny_pairs(n=4, size=SIZE, seed=5)
+    x = x.expand(-1, 3, -1, -1).contiguous()
+    want = model(x)
+    got = model.to(device)(x.to(device))
+    assert got.device.type == device.type
+    torch.testing.assert_close(got.cpu(), want, atol=1e-3, rtol=1e-3)
