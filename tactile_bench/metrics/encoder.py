@@ -55,10 +55,14 @@ class FeatureEncoder(nn.Module):
 
     @torch.no_grad()
     def features(self, images: torch.Tensor, batch_size: int = 256) -> torch.Tensor:
-        """Pooled bottleneck codes: a coarse spatial layout of what the encoder saw."""
+        """Pooled bottleneck codes: a coarse spatial layout of what the encoder saw, computed
+        on the encoder's device and returned on the images'."""
         self.eval()
+        device = self.mean.device
         out = [
-            F.adaptive_avg_pool2d(self.encoder(self.normalise(part)), self.pool).flatten(1)
+            F.adaptive_avg_pool2d(self.encoder(self.normalise(part.to(device))), self.pool)
+            .flatten(1)
+            .to(images.device)
             for part in images.split(batch_size)
         ]
         return torch.cat(out)
@@ -70,20 +74,22 @@ def fit_encoder(
     batch_size: int = 64,
     lr: float = 2e-3,
     seed: int = 0,
+    device: torch.device | str = "cpu",
     **kwargs: int,
 ) -> FeatureEncoder:
-    """Train a FeatureEncoder to reconstruct ``images`` (N, 3, S, S); seeded, CPU-fast."""
+    """Train a FeatureEncoder to reconstruct ``images`` (N, 3, S, S) on ``device``; seeded
+    (the batches are drawn on the CPU, the same on every device), CPU-fast."""
     gen = torch.Generator().manual_seed(seed)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        encoder = FeatureEncoder(**kwargs)
-    images = images.float()
+        encoder = FeatureEncoder(**kwargs).to(device)
+    images = images.float().to(device)
     encoder.mean.copy_(images.mean(dim=(0, 2, 3), keepdim=True))
     encoder.std.copy_(images.std(dim=(0, 2, 3), keepdim=True).clamp(min=1e-6))
     optimiser = torch.optim.Adam(encoder.parameters(), lr=lr)
     encoder.train()
     for _ in range(steps):
-        batch = images[torch.randint(0, len(images), (batch_size,), generator=gen)]
+        batch = images[torch.randint(0, len(images), (batch_size,), generator=gen).to(device)]
         loss = F.mse_loss(encoder(batch), encoder.normalise(batch))
         optimiser.zero_grad()
         loss.backward()

@@ -10,6 +10,7 @@ from pydantic import Field
 
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.hardware import compute_device
 from tactile_bench.io import atomic_write_json, atomic_write_text, load_npz
 from tactile_bench.metrics.encoder import fit_encoder, kid
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
@@ -37,6 +38,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         BrailleSet.load(data.path("finetune")).real.float(),
         steps=config.encoder_steps,
         seed=ctx.seed,
+        device=compute_device(ctx.trainer.get("accelerator")),
     )
     real_features = encoder.features(test.real.float())
     rows = []
