@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import NoReturn
 
 from tactile_bench.allocator import keep_freed_memory
+from tactile_bench.cli_args import check_arguments, check_environment, output_locks
 from tactile_bench.console import configure_logging
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.guard.args import check_arguments, check_environment, output_locks
 
 EXIT_USER_ERROR = 2
 

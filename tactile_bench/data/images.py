@@ -23,10 +23,7 @@ import torch
 from PIL import Image
 
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.guard.images import open_header
-
-#: colour modes that hold a 3-channel RGB frame (a palette PNG expands to RGB)
-RGB_MODES = ("RGB", "P")
+from tactile_bench.guard.images import RGB_MODES, open_image
 
 #: Pillow's modes of 16- and 32-bit integer grey; ``cv2.imread`` keeps their high byte
 _WIDE_GREY = ("I;16", "I;16B", "I;16L", "I")
@@ -58,28 +55,6 @@ class SameSize:
                 f"{path}: {w} x {h} pixels, but {self.first} is {self.size[0]} x "
                 f"{self.size[1]}: all {self.what} of a dataset must share one size"
             )
-
-
-def open_image(path: Path) -> Image.Image:
-    """The fully decoded image, or a one-line error saying what is wrong with the file."""
-    path = Path(path)
-    try:
-        with open_header(path) as im:  # size and pixel count from the header, then decode
-            im.load()  # decode now: a truncated file fails here
-            return im.copy()
-    except TactileBenchError:
-        raise
-    except FileNotFoundError:
-        raise TactileBenchError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise TactileBenchError(f"{path}: is a folder, not an image") from None
-    except Image.DecompressionBombError as exc:
-        raise TactileBenchError(f"{path}: image too large to be a sensor frame ({exc})") from None
-    except Exception as exc:  # PIL raises OSError, SyntaxError, ValueError ... on bad bytes
-        reason = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
-        raise TactileBenchError(
-            f"{path}: not a readable image (corrupt or truncated? {reason})"
-        ) from None
 
 
 def _channels(im: Image.Image) -> str:

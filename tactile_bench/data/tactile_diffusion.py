@@ -38,9 +38,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tactile_bench.data.images import open_image
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.guard.images import open_image
 from tactile_bench.sensor.depth import GelSpec
 
 from .images import SameSize, is_hidden, read_image, read_mask
