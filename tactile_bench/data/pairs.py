@@ -199,6 +199,7 @@ def load_pairs(root: str | os.PathLike, split: str = "train", verify: bool = Fal
         if verify and path.is_file() and file_sha256(path) != shard.get("sha256"):
             raise TactileBenchError(f"{path}: content does not match the manifest")
         parts.append(PairSet.load_shard(path, real_bg, sim_bg))
-    if not parts:
+    pairs = PairSet.cat(parts) if parts else None
+    if pairs is None or not len(pairs):
         raise TactileBenchError(f"{root}: no {split!r} pairs in the manifest")
-    return PairSet.cat(parts)
+    return pairs
