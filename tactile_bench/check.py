@@ -82,8 +82,8 @@ def _ycb_processed(path: Path, skipped: Skipped | None) -> str:
     bg = "; ".join(f"{k}: {v}" for k, v in backgrounds.items())
     return (
         f"Tactile-Diffusion YCB-Slide copy at {info['root']}: {len(pairs)} (depth, frame) "
-        f"pairs from {logs} logs ({len(pairs) - n_test} train / {n_test} test by its "
-        f"files_train_test.npz; {info['listed_without_depth']} listed frames without a "
+        f"pairs from {logs} logs ({len(pairs) - n_test} train / {n_test} test, split: "
+        f"{info['splits']}; {info['listed_without_depth']} listed frames without a "
         f"heightmap left out); backgrounds {bg}"
     )
 
