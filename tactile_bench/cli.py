@@ -17,9 +17,16 @@ from pathlib import Path
 from typing import NoReturn
 
 from tactile_bench.allocator import keep_freed_memory
-from tactile_bench.cli_args import check_arguments, check_environment, output_locks
+from tactile_bench.cli_args import (
+    check_arguments,
+    check_environment,
+    command_name,
+    output_locks,
+    output_of,
+)
 from tactile_bench.console import configure_logging
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.limits import disk_full_error
 
 EXIT_USER_ERROR = 2
 
@@ -490,6 +497,10 @@ def main(args: list[str] | None = None) -> int:
         )
         return EXIT_USER_ERROR
     except OSError as exc:  # the machine's answer about a file: a full disk, a name too long
+        full = disk_full_error(exc, output_of(ns) or Path.cwd())
+        if full is not None:  # the command, the file (or its output) and the space left
+            print(f"error: {command_name(ns)}: {full}", file=sys.stderr)
+            return EXIT_USER_ERROR
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
         return EXIT_USER_ERROR

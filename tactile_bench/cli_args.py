@@ -216,6 +216,16 @@ def check_arguments(ns: argparse.Namespace) -> None:
             check_output_file(value, flag(dest), spec.suffixes)
 
 
+def output_of(ns: argparse.Namespace) -> Path | None:
+    """The command's first declared output argument's path, or None when it has none."""
+    command = command_name(ns)
+    for (cmd, dest), _spec in OUTPUTS.items():
+        value = getattr(ns, dest, None)
+        if cmd == command and value is not None:
+            return Path(value)
+    return None
+
+
 @contextlib.contextmanager
 def output_locks(ns: argparse.Namespace) -> Iterator[None]:
     """Hold the locks of the command's locked outputs while it runs."""
