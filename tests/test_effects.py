@@ -229,7 +229,18 @@ def test_matrix_blur_matches_convolution(sx: float, sy: float) -> None:
 
 @pytest.mark.parametrize("smear_mm", [0.1, 1.2])
 def test_shear_smear_matches_shifted_samples(smear_mm: float) -> None:
-    from tactile_bench.effects.kernels import shift_mm
+    from tactile_bench.effects.kernels import pixel_grid
+
+    def shift_mm(x: torch.Tensor, dx_mm: torch.Tensor, dy_mm: torch.Tensor, ctx) -> torch.Tensor:  # type: ignore[no-untyped-def]
+        """``x`` sampled at (p + d), d in mm: the content moves by -d."""
+        n, _, h, w = x.shape
+        uu, vv = pixel_grid(h, w)
+        du = (2.0 * dx_mm / ctx.width_mm).reshape(-1, 1, 1)
+        dv = (2.0 * dy_mm / ctx.height_mm).reshape(-1, 1, 1)
+        grid = torch.stack([(uu + du).expand(n, h, w), (vv + dv).expand(n, h, w)], dim=-1)
+        return torch.nn.functional.grid_sample(
+            x, grid, mode="bilinear", padding_mode="border", align_corners=False
+        )
 
     effect, x = get_effect("shear_smear"), _height(4, 64)
     ours = effect.apply(x, {"smear_mm": smear_mm}, _gen(3), CTX)

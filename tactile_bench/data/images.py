@@ -117,32 +117,6 @@ def read_image(path: Path, size: int | None = None, same: SameSize | None = None
     return torch.from_numpy(np.asarray(im, dtype=np.uint8).copy()).permute(2, 0, 1)
 
 
-def read_gray(path: Path, size: int | None = None, same: SameSize | None = None) -> np.ndarray:
-    """(S, S) float64 grey levels 0..255 of an 8-bit grey image (a TACTO depth mask).
-
-    Grey stored as RGB with three equal channels is accepted; a 16-bit or colour image is
-    an error (its levels would not be the 0.03 mm steps the layout defines).
-    """
-    im = open_image(path)
-    if im.mode in ("RGB", "RGBA"):
-        arr = np.asarray(im.convert("RGB"))
-        if not (
-            np.array_equal(arr[..., 0], arr[..., 1]) and np.array_equal(arr[..., 0], arr[..., 2])
-        ):
-            raise TactileBenchError(
-                f"{path}: a colour image ({_channels(im)}) where an 8-bit grey depth mask "
-                "was expected"
-            )
-        im = im.convert("L")
-    elif im.mode != "L":
-        raise TactileBenchError(
-            f"{path}: {_channels(im)}; a depth mask here is 8-bit grey (mode L, 0.03 mm a level)"
-        )
-    if same is not None:
-        same.check(Path(path), im.size)
-    return np.asarray(area_resized(im, size), dtype=np.float64)
-
-
 #: cv2's COLOR_RGB2GRAY weights. dataio_braille.py applies it to what cv2.imread gives (B, G, R
 #: order), so the file's blue channel gets the 0.299; on grey masks (equal channels) it is exact.
 _RGB2GRAY = np.array([0.299, 0.587, 0.114])

@@ -227,18 +227,6 @@ def pixel_grid(
     return uu, vv
 
 
-def shift_mm(
-    x: torch.Tensor, dx_mm: torch.Tensor, dy_mm: torch.Tensor, ctx: EffectContext
-) -> torch.Tensor:
-    """Sample x at (p + d): content moves by -d. dx, dy broadcast to (N,), mm, image axes."""
-    n, _, h, w = x.shape
-    uu, vv = pixel_grid(h, w, x.device)
-    du = (2.0 * dx_mm / ctx.width_mm).reshape(-1, 1, 1)
-    dv = (2.0 * dy_mm / ctx.height_mm).reshape(-1, 1, 1)
-    grid = torch.stack([(uu + du).expand(n, h, w), (vv + dv).expand(n, h, w)], dim=-1)
-    return F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
-
-
 def surface_gradient(height: torch.Tensor, ctx: EffectContext) -> tuple[torch.Tensor, torch.Tensor]:
     """Central-difference slope (dh/dx, dh/dy), mm/mm, image axes (x right, y down)."""
     dx, dy = ctx.mm_per_px(height)

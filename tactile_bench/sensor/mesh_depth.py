@@ -14,14 +14,13 @@ where the object penetrates the gel. Rays start ``reach_mm`` behind the gel plan
 penetration deeper than that (never physical: the gel is 4.6 mm thick) reads as ``reach_mm``;
 pixels whose ray meets nothing within ``reach_mm`` in front of the gel read ``-reach_mm``.
 
-Backends (measured on this 2-core machine, 64 x 64 model images oversampled to 128 x 128,
-a 330k-face mesh; see the module's ``benchmark``):
-- ``embree``: Intel Embree through ``embreex`` (PyPI wheel), a BVH in C++: ~250-400 frames/s.
+Backends:
+- ``embree``: Intel Embree through ``embreex`` (PyPI wheel), a BVH in C++: the fast one.
 - ``pybullet``: ``rayTestBatch`` on a static concave mesh; always available (pybullet is a
-  dependency) but the ray lists cross into Python: ~10 frames/s. Used only without embreex.
-pybullet's TinyRenderer depth camera was the third option (575 img/s at 64 x 64 on a 6k-face
-mesh) but it is a perspective camera, its cost grows with the face count of the whole mesh
-and its depth buffer must be linearised; rays are exact and orthographic.
+  dependency) but the ray lists cross into Python, so it is far slower. Used only without
+  embreex.
+Rays are exact and orthographic, as the DIGIT's depth here is; a rasterising depth camera
+(pybullet's TinyRenderer) is perspective and its depth buffer must be linearised.
 ``embreex``'s ``run`` holds the GIL (two Python threads cast no faster than one), so the
 corpus builder (``data.ycb_slide``) puts both cores to work with processes.
 """
@@ -313,32 +312,3 @@ def _as_images(heights: np.ndarray) -> torch.Tensor:
     side = int(round(n_pix**0.5))
     shape = (n, 1, side, side) if side * side == n_pix else (n, 1, 1, n_pix)
     return torch.from_numpy(heights).reshape(shape)
-
-
-def render_mesh_height(
-    mesh: object,
-    poses: np.ndarray | torch.Tensor,
-    gel: GelSpec | None = None,
-    backend: str = "auto",
-    reach_mm: float = 10.0,
-) -> torch.Tensor:
-    """One-shot ``MeshDepthRenderer(mesh).render_height(poses)``: signed height, mm."""
-    renderer = MeshDepthRenderer.from_trimesh(mesh, gel, backend=backend, reach_mm=reach_mm)
-    try:
-        return renderer.render_height(poses)
-    finally:
-        renderer.close()
-
-
-def benchmark(
-    mesh: object, poses: np.ndarray, gel: GelSpec | None = None, backend: str = "auto"
-) -> float:
-    """Frames per second of ``render_height`` (after the scene is built)."""
-    import time
-
-    renderer = MeshDepthRenderer.from_trimesh(mesh, gel, backend=backend)
-    start = time.perf_counter()
-    renderer.render_height(poses)
-    rate = len(poses) / (time.perf_counter() - start)
-    renderer.close()
-    return rate
