@@ -89,7 +89,7 @@ def _ycb_processed(path: Path, skipped: Skipped | None) -> str:
 
 
 def _corpus(path: Path, skipped: Skipped | None) -> str:
-    from tactile_bench.data.pairs import load_pairs
+    from tactile_bench.data.corpus import load_pairs
 
     pairs = load_pairs(path, "all", verify=True)
     return f"pair-set corpus: {len(pairs)} pairs, every shard matches its manifest hash"

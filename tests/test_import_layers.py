@@ -118,7 +118,7 @@ def _imports(modules: dict[str, Path]) -> dict[str, set[str]]:
 
 
 def _short(module: str) -> str | None:
-    """``tactile_bench.data.pairs`` -> ``data.pairs``; None outside the package."""
+    """``tactile_bench.data.corpus`` -> ``data.corpus``; None outside the package."""
     if module == "tactile_bench":
         return ""
     return module.removeprefix("tactile_bench.") if module.startswith("tactile_bench.") else None

@@ -239,7 +239,7 @@ def test_processed_ycb_copy_is_a_corpus_source(
 ) -> None:
     from data.original_layouts import BGS_OBJECTS, write_ycb_processed
 
-    from tactile_bench.data.pairs import load_pairs
+    from tactile_bench.data.corpus import load_pairs
 
     datasets = tmp_path / "datasets"
     root = write_ycb_processed(datasets, frames=6, logs=2)
@@ -285,7 +285,7 @@ def test_processed_ycb_copy_without_its_split_files_gets_one_drawn_into_the_run(
     rest train, from the recipe's seed; written in the stage folder, never into the copy."""
     from data.original_layouts import write_ycb_processed
 
-    from tactile_bench.data.pairs import load_pairs
+    from tactile_bench.data.corpus import load_pairs
     from tactile_bench.data.ycb_processed import SPLIT_FILE, make_log_split
 
     datasets = tmp_path / "datasets"

@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
+from tactile_bench.data.corpus import load_pairs
 from tactile_bench.data.images import read_image, read_mask
-from tactile_bench.data.pairs import load_pairs
 from tactile_bench.data.tactile_diffusion import load_braille_pairs, read_split
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import load_npz

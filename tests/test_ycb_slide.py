@@ -1,4 +1,4 @@
-"""The YCB-Slide stand-in corpus: shards, split by trajectory, resume, PairSet round trip."""
+"""The YCB-Slide stand-in corpus: shards, split by trajectory, resume, CorpusPairs round trip."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from tactile_bench.data.pairs import PairSet, load_pairs
+from tactile_bench.data.corpus import CorpusPairs, load_pairs
 from tactile_bench.data.ycb_slide import StandinConfig, build_ycb_slide_standin
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec
@@ -162,20 +162,20 @@ def test_corrupt_shard_is_named(corpus: tuple[Path, dict], tmp_path: Path) -> No
 
 def test_pairset_validates() -> None:
     with pytest.raises(TactileBenchError, match="depth"):
-        PairSet(
+        CorpusPairs(
             torch.zeros(2, 3, 8, 8),
             torch.zeros(2, 3, 8, 8, dtype=torch.uint8),
             torch.zeros(3, 8, 8),
             torch.zeros(2),
         )
     with pytest.raises(TactileBenchError, match="NaN"):
-        PairSet(
+        CorpusPairs(
             torch.full((1, 1, 8, 8), float("nan")),
             torch.zeros(1, 3, 8, 8, dtype=torch.uint8),
             torch.zeros(3, 8, 8),
             torch.zeros(1),
         )
-    p = PairSet(
+    p = CorpusPairs(
         torch.zeros(4, 1, 8, 8),
         torch.zeros(4, 3, 8, 8, dtype=torch.uint8),
         torch.zeros(3, 8, 8),

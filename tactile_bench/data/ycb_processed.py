@@ -36,8 +36,8 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_npz
 from tactile_bench.sensor.depth import GelSpec
 
+from .corpus import CorpusPairs
 from .images import is_hidden, read_image, read_mask
-from .pairs import PairSet
 from .tactile_diffusion import MM_PER_LEVEL
 
 #: ``bgs_objects`` of Tactile-Diffusion's ``utils/misc.py``: each object's background frame
@@ -126,7 +126,7 @@ def load_ycb_processed(
     skipped: list[tuple[str, str]] | None = None,
     seed: int = 0,
     write_splits_to: Path | None = None,
-) -> tuple[PairSet, dict[str, object]]:
+) -> tuple[CorpusPairs, dict[str, object]]:
     """(depth, real frame) pairs of the processed copy, and what was read.
 
     ``meta["test"]`` marks the copy's test frames; ``meta`` also has object, trajectory (one
@@ -178,7 +178,7 @@ def load_ycb_processed(
             trajectory += 1
     if not depths:
         raise TactileBenchError(f"{data}: no (frame, frames_depth) pairs")
-    pairs = PairSet(
+    pairs = CorpusPairs(
         depth=torch.stack(depths),
         real=torch.stack(reals),
         real_background=torch.stack(bgs),

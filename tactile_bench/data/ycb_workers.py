@@ -33,7 +33,7 @@ from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.timing import SpanTimer, active_timer, timed_span
 
-from .pairs import PairSet
+from .corpus import CorpusPairs
 from .pixels import to_uint8
 from .ycb_frames import (
     TRAJECTORY_CHUNK,
@@ -87,7 +87,7 @@ def write_shard(job: ObjectJob, k: int, pieces: list[dict[str, Any]]) -> int:
     out = {key: _cat([p[key] for p in pieces]) for key in pieces[0]}
     n = len(out["frame"])
     with timed_span("io"):
-        PairSet(
+        CorpusPairs(
             depth=out["depth"],
             real=out["real"],
             real_background=job.real_bg,

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from tactile_bench.data.pairs import load_pairs, read_manifest
+from tactile_bench.data.corpus import load_pairs, read_manifest
 from tactile_bench.data.ycb_processed import (
     SPLIT_FILE,
     load_ycb_processed,
