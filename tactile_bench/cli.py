@@ -442,7 +442,7 @@ def main(args: list[str] | None = None) -> int:
     """Run the command line; returns the exit code instead of exiting, for in-process tests."""
     os.environ.setdefault("WANDB_MODE", "offline")
     # Freed tensor memory stays in the process for the next tensor instead of being faulted
-    # in afresh (tactile_bench.allocator: ~8% more braille contacts/s on two threads).
+    # in afresh (tactile_bench.allocator; what it gains: docs/results/code_figures.md).
     keep_freed_memory()
     if sys.stdout is None:  # started with stdout closed (``cmd >&-``): print goes nowhere
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - lives as long as the process

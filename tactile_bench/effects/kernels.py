@@ -34,10 +34,11 @@ def gaussian_blur(
     upsampled back: same result to ~1% for a smooth field. The whole 1-D blur of each axis
     (padding, taps, upsampling) is one matrix, so the blur is two GEMMs, ``Ly @ x @ Lx^T``
     (after the 2x area pooling, for a wide one): at these sizes (<= a few hundred px)
-    ~15x faster on CPU than a 1-channel ``conv2d``, and differentiable in sigma through the
-    matrices. Narrow blurs (taps within ``SMALL_BLUR_RADIUS`` px) of fixed sigma outside
-    autograd are shifted adds of the same taps instead (``_blur_by_taps``): the dense GEMMs
-    spend H + W multiply-adds a pixel whatever the radius.
+    faster on CPU than a 1-channel ``conv2d`` (docs/results/code_figures.md), and
+    differentiable in sigma through the matrices. Narrow blurs (taps within
+    ``SMALL_BLUR_RADIUS`` px) of fixed sigma outside autograd are shifted adds of the same
+    taps instead (``_blur_by_taps``): the dense GEMMs spend H + W multiply-adds a pixel
+    whatever the radius.
     """
     h, w = x.shape[-2], x.shape[-1]
     taps = _small_blur_taps(h, w, sigma_x_px, sigma_y_px, max_radius, x)
@@ -106,8 +107,9 @@ def _blur_by_taps(x: torch.Tensor, kx: tuple[float, ...], ky: tuple[float, ...])
 def area_pool(x: torch.Tensor, factor: int) -> torch.Tensor:
     """``F.avg_pool2d(x, factor)`` of (N, C, H, W), H and W multiples of ``factor``.
 
-    The same sums in the same order (so the same floats), as strided adds: ~2.5x faster on
-    CPU than torch's pooling kernel at these sizes.
+    The same sums in the same order (so the same floats), as strided adds: faster on CPU
+    than torch's pooling kernel on the one-channel depth maps it pools most, as fast on
+    images (docs/results/code_figures.md).
     """
     n, c, h, w = x.shape
     if h % factor or w % factor or x.requires_grad:

@@ -68,12 +68,13 @@ def _thetas(bank: HeightFieldBank, poses: Poses, gel: GelSpec) -> torch.Tensor:
 
 
 def _affine_grid(theta: torch.Tensor, side: int) -> torch.Tensor:
-    """``F.affine_grid(theta, [k, 1, side, side], align_corners=False)``, ~3x faster.
+    """``F.affine_grid(theta, [k, 1, side, side], align_corners=False)``, computed faster
+    (docs/results/code_figures.md).
 
     The map is affine, so the grid is a row term plus a column term: broadcast adds instead
     of a batched matmul against the homogeneous base grid (same values to ~1 ulp). One add
-    per coordinate, each along a whole row, into the interleaved grid: ~1.7x faster than
-    one add over (x, y) pairs, whose innermost run of 2 values defeats vectorisation.
+    per coordinate, each along a whole row, into the interleaved grid: faster than one add
+    over (x, y) pairs, whose innermost run of 2 values defeats vectorisation.
     """
     base = (torch.arange(side, dtype=theta.dtype) * 2 + 1) / side - 1
     t = theta.transpose(1, 2)[:, None, None]  # (k, 1, 1, 3, 2): columns x, y, offset

@@ -269,8 +269,8 @@ class MeshDepthRenderer:
         precision; the frame's origin is moved to the mesh centre first, in float64).
 
         A pixel's ray starts at x R[:, 0] + y R[:, 1] + (t - reach R[:, 2]) and runs along
-        R[:, 2]: two outer products per coordinate instead of a stacked 3 x 3 matmul (~2x
-        less set-up). Same rays as ``_render_rays`` to float32 rounding (~1e-6 mm).
+        R[:, 2]: two outer products per coordinate instead of a stacked 3 x 3 matmul (less
+        set-up). Same rays as ``_render_rays`` to float32 rounding (~1e-6 mm).
         """
         scene, centre = self._cast.scene, self._cast.centre  # type: ignore[union-attr]
         xs64 = self._xs if xs64 is None else xs64
