@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 
 from tactile_bench.effects.kernels import area_pool, gaussian_blur
-from tactile_bench.sensor.depth import _affine_grid
+from tactile_bench.sensor.depth import affine_grid
 
 
 def _median_s(run: Callable[[], object], repeats: int) -> float:
@@ -56,18 +56,18 @@ def main() -> None:
 
     theta = torch.randn(256, 2, 3)
     torch.testing.assert_close(
-        _affine_grid(theta, 128),
+        affine_grid(theta, 128),
         F.affine_grid(theta, [256, 1, 128, 128], align_corners=False),
         atol=1e-5,
         rtol=0,
     )
     rows.append(
         (
-            "sensor.depth._affine_grid vs F.affine_grid (256 x 128 x 128)",
+            "sensor.depth.affine_grid vs F.affine_grid (256 x 128 x 128)",
             _median_s(
                 lambda: F.affine_grid(theta, [256, 1, 128, 128], align_corners=False), repeats
             ),
-            _median_s(lambda: _affine_grid(theta, 128), repeats),
+            _median_s(lambda: affine_grid(theta, 128), repeats),
         )
     )
 

@@ -32,7 +32,7 @@ _set_here = False  # keep_freed_memory() succeeded in this process
 
 
 @functools.cache
-def _glibc() -> ctypes.CDLL | None:
+def glibc() -> ctypes.CDLL | None:
     """The C library this process runs on, if it is glibc (the only one with ``mallopt``'s
     thresholds as used here)."""
     try:
@@ -50,7 +50,7 @@ def keep_freed_memory() -> bool:
     only code that owns the process calls it. Calling it again changes nothing.
     """
     global _set_here
-    libc = _glibc()
+    libc = glibc()
     if libc is None:
         return False
     ok = libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1

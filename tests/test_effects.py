@@ -203,7 +203,7 @@ def test_jpeg_approximation_close_to_a_real_encoder() -> None:
 def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
     import math
 
-    from tactile_bench.effects.kernels import _conv1d_slices, gaussian_kernel1d
+    from tactile_bench.effects.kernels import conv1d_slices, gaussian_kernel1d
 
     if sx > 4 and sy > 4:  # the wide path: 2x area down, blur, bilinear up
         small = torch.nn.functional.avg_pool2d(x, 2)
@@ -211,7 +211,7 @@ def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
         return torch.nn.functional.interpolate(small, size=x.shape[-2:], mode="bilinear")
     kx = gaussian_kernel1d(torch.tensor(sx), min(64, math.ceil(3 * sx), x.shape[-1] - 1))
     ky = gaussian_kernel1d(torch.tensor(sy), min(64, math.ceil(3 * sy), x.shape[-2] - 1))
-    return _conv1d_slices(_conv1d_slices(x, kx, -1), ky, -2)
+    return conv1d_slices(conv1d_slices(x, kx, -1), ky, -2)
 
 
 @pytest.mark.parametrize(("sx", "sy"), [(0.43, 0.32), (1.6, 1.2), (6.4, 4.8), (17.8, 13.3)])
@@ -267,10 +267,10 @@ def test_elastic_spread_matches_masked_pyramid() -> None:
 
 
 def _ref_jpeg(x: torch.Tensor, quality: float, hw: tuple[int, int]) -> torch.Tensor:
-    from tactile_bench.effects.camera import _dct_matrix, quant_tables
+    from tactile_bench.effects.camera import dct_matrix, quant_tables
 
     f = torch.nn.functional
-    d2 = torch.kron(_dct_matrix(), _dct_matrix())
+    d2 = torch.kron(dct_matrix(), dct_matrix())
 
     def blocks(plane: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
         n, h, w = plane.shape

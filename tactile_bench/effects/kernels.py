@@ -67,13 +67,15 @@ def _small_blur_taps(
         return None
     if any(isinstance(s, torch.Tensor) and s.requires_grad for s in (sigma_x_px, sigma_y_px)):
         return None
-    return _cached_small_taps(h, w, scalar(sigma_x_px), scalar(sigma_y_px), max_radius)
+    return small_blur_taps(h, w, scalar(sigma_x_px), scalar(sigma_y_px), max_radius)
 
 
 @lru_cache(maxsize=64)
-def _cached_small_taps(
+def small_blur_taps(
     h: int, w: int, sx: float, sy: float, max_radius: int
 ) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """The (x, y) taps of a narrow blur that ``gaussian_blur`` runs as shifted adds, or None
+    when the blur is wide and takes the pooled matrix path instead (cached by its sizes)."""
     if max(sx, sy) > 4 or min(h, w) < 2:  # wide: the pooled GEMM path
         return None
     rx = min(max_radius, max(1, math.ceil(3.0 * sx)), w - 1)
@@ -173,7 +175,7 @@ def _blur_factors(
 
 def _conv_matrix(n: int, k: torch.Tensor) -> torch.Tensor:
     """(n, n) matrix of the reflect-padded correlation with taps ``k``: the conv of an identity."""
-    return _conv1d_slices(torch.eye(n)[None, None], k, -1)[0, 0].T
+    return conv1d_slices(torch.eye(n)[None, None], k, -1)[0, 0].T
 
 
 @lru_cache(maxsize=16)
@@ -201,7 +203,7 @@ def resize_matrix(out: int, n: int, mode: str) -> torch.Tensor:
     return F.interpolate(eye, size=(out, n), mode="bilinear", align_corners=False)[0, 0]
 
 
-def _conv1d_slices(x: torch.Tensor, k: torch.Tensor, dim: int) -> torch.Tensor:
+def conv1d_slices(x: torch.Tensor, k: torch.Tensor, dim: int) -> torch.Tensor:
     """Correlate every (N, C) plane along ``dim`` with taps ``k``, reflect padding.
 
     The reference definition of one blur axis; ``_conv_matrix`` runs it once on an identity.

@@ -67,7 +67,7 @@ def _thetas(bank: HeightFieldBank, poses: Poses, gel: GelSpec) -> torch.Tensor:
     return theta / bank.half_extent_mm
 
 
-def _affine_grid(theta: torch.Tensor, side: int) -> torch.Tensor:
+def affine_grid(theta: torch.Tensor, side: int) -> torch.Tensor:
     """``F.affine_grid(theta, [k, 1, side, side], align_corners=False)``, computed faster
     (docs/results/code_figures.md).
 
@@ -110,12 +110,12 @@ def render_height(
         first = torch.full((len(unique),), n, dtype=torch.long).scatter_reduce_(
             0, inverse, torch.arange(n), "amin"
         )  # one contact of each placement
-        h = _sample_maps(bank, poses.index(first), gel, chunk, side)
+        h = sample_maps(bank, poses.index(first), gel, chunk, side)
         return h[inverse].sub_(offset.view(n, 1, 1, 1))
-    return _sample_maps(bank, poses, gel, chunk, side).sub_(offset.view(n, 1, 1, 1))
+    return sample_maps(bank, poses, gel, chunk, side).sub_(offset.view(n, 1, 1, 1))
 
 
-def _sample_maps(
+def sample_maps(
     bank: HeightFieldBank, poses: Poses, gel: GelSpec, chunk: int, side: int
 ) -> torch.Tensor:
     """The bank's map of each contact's label, moved and turned to its placement."""
@@ -126,7 +126,7 @@ def _sample_maps(
     for label in torch.unique(labels).tolist():
         for idx in torch.nonzero(labels == label).flatten().split(chunk):
             k = len(idx)
-            grid = _affine_grid(thetas[idx], side)
+            grid = affine_grid(thetas[idx], side)
             h = F.grid_sample(
                 maps[label : label + 1],
                 grid.view(1, k * side, side, 2),

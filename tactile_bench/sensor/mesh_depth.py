@@ -223,7 +223,7 @@ class MeshDepthRenderer:
             raise TactileBenchError("mesh_depth: renderer already closed")
         if self.backend == "embree":
             return self._render_embree(p, xs, ys)
-        return self._render_rays(p, xs, ys)
+        return self.render_rays(p, xs, ys)
 
     def peak_height(self, poses: np.ndarray | torch.Tensor, step: int = 4) -> np.ndarray:
         """(N,) highest signed height, mm, seen by every ``step``-th pixel in each direction.
@@ -240,7 +240,7 @@ class MeshDepthRenderer:
             h = self._render_height(poses, self._xs[keep], self._ys[keep])
         return h.flatten(1).amax(1).numpy().astype(np.float64)
 
-    def _render_rays(
+    def render_rays(
         self, p: np.ndarray, xs: np.ndarray | None = None, ys: np.ndarray | None = None
     ) -> torch.Tensor:
         """Any backend: float64 ray set-up, then the backend's caster (the reference path)."""
@@ -270,7 +270,7 @@ class MeshDepthRenderer:
 
         A pixel's ray starts at x R[:, 0] + y R[:, 1] + (t - reach R[:, 2]) and runs along
         R[:, 2]: two outer products per coordinate instead of a stacked 3 x 3 matmul (less
-        set-up). Same rays as ``_render_rays`` to float32 rounding (~1e-6 mm).
+        set-up). Same rays as ``render_rays`` to float32 rounding (~1e-6 mm).
         """
         scene, centre = self._cast.scene, self._cast.centre  # type: ignore[union-attr]
         xs64 = self._xs if xs64 is None else xs64
