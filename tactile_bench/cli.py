@@ -438,6 +438,16 @@ def _add_list(sub: argparse._SubParsersAction) -> None:
     lst.set_defaults(func=_cmd_list)
 
 
+def _os_error(exc: OSError, ns: argparse.Namespace) -> str:
+    """The file and the system's reason; for a full disk, the command, the file (or the
+    command's output) and the space left there."""
+    full = disk_full_error(exc, output_of(ns) or Path.cwd())
+    if full is not None:
+        return f"{command_name(ns)}: {full}"
+    where = f"{exc.filename}: " if exc.filename else ""
+    return f"{where}{exc.strerror or exc}"
+
+
 def main(args: list[str] | None = None) -> int:
     """Run the command line; returns the exit code instead of exiting, for in-process tests."""
     os.environ.setdefault("WANDB_MODE", "offline")
@@ -497,12 +507,7 @@ def main(args: list[str] | None = None) -> int:
         )
         return EXIT_USER_ERROR
     except OSError as exc:  # the machine's answer about a file: a full disk, a name too long
-        full = disk_full_error(exc, output_of(ns) or Path.cwd())
-        if full is not None:  # the command, the file (or its output) and the space left
-            print(f"error: {command_name(ns)}: {full}", file=sys.stderr)
-            return EXIT_USER_ERROR
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(f"error: {_os_error(exc, ns)}", file=sys.stderr)
         return EXIT_USER_ERROR
     except MemoryError:
         print(

@@ -104,6 +104,18 @@ def save_log_split(train: list[str], test: list[str], path: Path) -> Path:
     )
 
 
+def _log_split(log: Path, seed: int, write_to: Path | None) -> tuple[list[str], list[str], bool]:
+    """A log's (train, test) files: its own split file, else one drawn by
+    :func:`make_log_split` (written under ``write_to/<object>/<log>/`` when given); and
+    whether it was drawn."""
+    if (log / SPLIT_FILE).exists():
+        return (*_read_split(log / SPLIT_FILE), False)
+    train, test = make_log_split(log, seed)
+    if write_to is not None:
+        save_log_split(train, test, write_to / log.parent.name / log.name / SPLIT_FILE)
+    return train, test, True
+
+
 def _read_split(path: Path) -> tuple[list[str], list[str]]:
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -152,13 +164,8 @@ def load_ycb_processed(
         )
         released = released_background(base / "bgs", name)
         for log in logs:
-            if (log / SPLIT_FILE).exists():
-                train, test = _read_split(log / SPLIT_FILE)
-            else:
-                train, test = make_log_split(log, seed)
-                generated.append(f"{name}/{log.name}")
-                if write_splits_to is not None:
-                    save_log_split(train, test, write_splits_to / name / log.name / SPLIT_FILE)
+            train, test, drawn = _log_split(log, seed, write_splits_to)
+            generated += [f"{name}/{log.name}"] if drawn else []
             listed = [(f, 0) for f in train] + [(f, 1) for f in test]
             listed = sorted(listed)[::stride]
             read, missing = _read_listed(log, listed, gel, mm_per_level, skipped)
