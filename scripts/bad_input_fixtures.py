@@ -87,11 +87,11 @@ def file_sha256(path: Path) -> str:
 
 def corpus(root: Path) -> Path:
     """A two-shard pair-set corpus in the format the pipeline writes."""
-    from tactile_bench.data.pairs import PairSet
+    from tactile_bench.data.corpus import CorpusPairs
     from tactile_bench.data.ycb_slide import write_corpus
 
     n = 4
-    pairs = PairSet(
+    pairs = CorpusPairs(
         depth=torch.full((n, 1, 16, 16), 0.5),
         real=torch.full((n, 3, 16, 16), 100, dtype=torch.uint8),
         real_background=torch.full((1, 3, 16, 16), 90, dtype=torch.uint8),

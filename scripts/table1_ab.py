@@ -48,6 +48,7 @@ import torch.nn.functional as F
 from kornia.filters import gaussian_blur2d
 from torchmetrics.functional.image import structural_similarity_index_measure
 
+from tactile_bench.classify.store import load_classifier
 from tactile_bench.classify.train import (
     ClassifierConfig,
     evaluate,
@@ -58,7 +59,6 @@ from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.datamodule import stratified_split, stratified_subset
 from tactile_bench.data.pixels import to_uint8
 from tactile_bench.metrics.noise import estimate_pixel_noise
-from tactile_bench.pipeline.stages.classify import load_classifier
 from tactile_bench.translators import image_to_foreground
 from tactile_bench.translators.registry import translator_class
 

@@ -3,11 +3,9 @@
 Rendering makes many short-lived tensors of a few MB (a chunk of 128 contacts at 128 x 128
 is 8 MB a map). glibc returns such blocks to the kernel when they are freed (``munmap``, or
 trimming the top of the heap), so the next tensor of that size faults in fresh zeroed
-pages: 50-110k minor page faults and 0.1-0.25 s of system time per 1,024 braille contacts
-on two threads (measured on the 2-core machine of docs/results/bench.md). Fixing the mmap
-threshold at 32 MiB (where glibc's own adaptive threshold stops) and the trim threshold at
-``TRIM_THRESHOLD`` keeps those pages in the process for the next tensor: 3-5x fewer
-faults, half the system time.
+pages, paid in system time. Fixing the mmap threshold at 32 MiB (where glibc's own adaptive
+threshold stops) and the trim threshold at ``TRIM_THRESHOLD`` keeps those pages in the
+process for the next tensor (the faults and times it saves: docs/results/code_figures.md).
 
 The command line (``tactile_bench.cli.main``) and the corpus builder's worker processes set
 it: they own their processes. Importing the package changes nothing. Elsewhere than glibc
@@ -34,7 +32,7 @@ _set_here = False  # keep_freed_memory() succeeded in this process
 
 
 @functools.cache
-def _glibc() -> ctypes.CDLL | None:
+def glibc() -> ctypes.CDLL | None:
     """The C library this process runs on, if it is glibc (the only one with ``mallopt``'s
     thresholds as used here)."""
     try:
@@ -52,7 +50,7 @@ def keep_freed_memory() -> bool:
     only code that owns the process calls it. Calling it again changes nothing.
     """
     global _set_here
-    libc = _glibc()
+    libc = glibc()
     if libc is None:
         return False
     ok = libc.mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1

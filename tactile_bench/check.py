@@ -82,14 +82,14 @@ def _ycb_processed(path: Path, skipped: Skipped | None) -> str:
     bg = "; ".join(f"{k}: {v}" for k, v in backgrounds.items())
     return (
         f"Tactile-Diffusion YCB-Slide copy at {info['root']}: {len(pairs)} (depth, frame) "
-        f"pairs from {logs} logs ({len(pairs) - n_test} train / {n_test} test by its "
-        f"files_train_test.npz; {info['listed_without_depth']} listed frames without a "
+        f"pairs from {logs} logs ({len(pairs) - n_test} train / {n_test} test, split: "
+        f"{info['splits']}; {info['listed_without_depth']} listed frames without a "
         f"heightmap left out); backgrounds {bg}"
     )
 
 
 def _corpus(path: Path, skipped: Skipped | None) -> str:
-    from tactile_bench.data.pairs import load_pairs
+    from tactile_bench.data.corpus import load_pairs
 
     pairs = load_pairs(path, "all", verify=True)
     return f"pair-set corpus: {len(pairs)} pairs, every shard matches its manifest hash"

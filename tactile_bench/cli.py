@@ -17,9 +17,16 @@ from pathlib import Path
 from typing import NoReturn
 
 from tactile_bench.allocator import keep_freed_memory
+from tactile_bench.cli_args import (
+    check_arguments,
+    check_environment,
+    command_name,
+    output_locks,
+    output_of,
+)
 from tactile_bench.console import configure_logging
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.guard.args import check_arguments, check_environment, output_locks
+from tactile_bench.guard.limits import disk_full_error
 
 EXIT_USER_ERROR = 2
 
@@ -431,11 +438,21 @@ def _add_list(sub: argparse._SubParsersAction) -> None:
     lst.set_defaults(func=_cmd_list)
 
 
+def _os_error(exc: OSError, ns: argparse.Namespace) -> str:
+    """The file and the system's reason; for a full disk, the command, the file (or the
+    command's output) and the space left there."""
+    full = disk_full_error(exc, output_of(ns) or Path.cwd())
+    if full is not None:
+        return f"{command_name(ns)}: {full}"
+    where = f"{exc.filename}: " if exc.filename else ""
+    return f"{where}{exc.strerror or exc}"
+
+
 def main(args: list[str] | None = None) -> int:
     """Run the command line; returns the exit code instead of exiting, for in-process tests."""
     os.environ.setdefault("WANDB_MODE", "offline")
     # Freed tensor memory stays in the process for the next tensor instead of being faulted
-    # in afresh (tactile_bench.allocator: ~8% more braille contacts/s on two threads).
+    # in afresh (tactile_bench.allocator; what it gains: docs/results/code_figures.md).
     keep_freed_memory()
     if sys.stdout is None:  # started with stdout closed (``cmd >&-``): print goes nowhere
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - lives as long as the process
@@ -490,8 +507,7 @@ def main(args: list[str] | None = None) -> int:
         )
         return EXIT_USER_ERROR
     except OSError as exc:  # the machine's answer about a file: a full disk, a name too long
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(f"error: {_os_error(exc, ns)}", file=sys.stderr)
         return EXIT_USER_ERROR
     except MemoryError:
         print(

@@ -17,6 +17,7 @@ import torch
 
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.files import require_not_special
+from tactile_bench.guard.limits import disk_full_error
 
 
 def _current_umask() -> int:
@@ -29,19 +30,30 @@ _UMASK = _current_umask()
 
 
 def _atomic(path: Path, write: Callable[[Path], None]) -> Path:
-    """Write through a temporary file in the same directory, then rename over ``path``."""
+    """Write through a temporary file in the same directory, then rename over ``path``.
+
+    A full disk is a one-line error naming ``path`` and the space left, measured after the
+    partial temporary file is removed."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
     try:
-        write(tmp)
-        # mkstemp makes the file private (0600); results are files like any other
-        tmp.chmod(0o666 & ~_UMASK)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        tmp = Path(tmp_name)
+        try:
+            write(tmp)
+            # mkstemp makes the file private (0600); results are files like any other
+            tmp.chmod(0o666 & ~_UMASK)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+    except OSError as exc:
+        if exc.filename is None:  # a write to the open temporary file: it was ``path``
+            exc.filename = str(path)
+        full = disk_full_error(exc, path)
+        if full is None:
+            raise
+        raise full from None
     return path
 
 

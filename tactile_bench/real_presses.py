@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from tactile_bench.data.ball_presses import TAXIM_SENSORS, BallPresses, load_ball_presses
-from tactile_bench.data.pairs import PairSet, load_pairs
+from tactile_bench.data.corpus import CorpusPairs, load_pairs
 from tactile_bench.data.ycb_slide import build_ycb_slide_standin
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.errors import TactileBenchError
@@ -248,7 +248,7 @@ def translators_on_presses(
 
 
 def _fit_translators(
-    corpus: PairSet,
+    corpus: CorpusPairs,
     fit_depth: torch.Tensor,
     fit_fg: torch.Tensor,
     out_dir: Path,

@@ -13,7 +13,7 @@ import pytest
 from tactile_bench import allocator
 from tactile_bench.cli import main
 
-needs_glibc = pytest.mark.skipif(allocator._glibc() is None, reason="malloc is not glibc's")
+needs_glibc = pytest.mark.skipif(allocator.glibc() is None, reason="malloc is not glibc's")
 
 # A fresh process makes and frees one 8 MB tensor; glibc's mallinfo2 says whether the
 # block had its own mapping and how much freed memory the heap kept.

@@ -13,8 +13,8 @@ import torch
 
 from tactile_bench.data.ball_presses import BallPresses
 from tactile_bench.data.braille import BrailleSet
+from tactile_bench.data.corpus import CorpusPairs
 from tactile_bench.data.paired import Pairs
-from tactile_bench.data.pairs import PairSet
 from tactile_bench.data.pixels import image_to_foreground
 from tactile_bench.diagnose.paired import PairedData, from_braille_set
 from tactile_bench.errors import TactileBenchError
@@ -195,22 +195,26 @@ def test_pair_set_subsets_and_foregrounds_through_the_base() -> None:
     toy = _toy()
     frames = torch.stack([toy.real_background, toy.real_background // 2])  # (B,3,S,S)
     which = torch.tensor([0, 1, 1, 0, 1])
-    pairs = PairSet(toy.depth, toy.real, frames, which, meta={"t": np.arange(N) * 10})
-    assert isinstance(pairs, Pairs) and PairSet.subset is Pairs.subset
+    pairs = CorpusPairs(toy.depth, toy.real, frames, which, meta={"t": np.arange(N) * 10})
+    assert isinstance(pairs, Pairs) and CorpusPairs.subset is Pairs.subset
     for idx in (torch.tensor([False, True, True, False, False]), [1, 2], slice(1, 3)):
         sub = pairs.subset(idx)
         assert list(sub.meta["t"]) == [10, 20] and sub.real_bg_index.tolist() == [1, 1]
         assert torch.equal(sub.real, toy.real[1:3]) and sub.sim is None
-    with pytest.raises(TactileBenchError, match=r"PairSet.subset: a mask of shape \(6,\)"):
+    with pytest.raises(TactileBenchError, match=r"CorpusPairs.subset: a mask of shape \(6,\)"):
         pairs.subset(torch.ones(6, dtype=torch.bool))
     want = image_to_foreground(toy.real.float(), frames[which].float())
     assert torch.equal(pairs.foreground("real"), want)  # each pair on its own frame
-    with pytest.raises(TactileBenchError, match="PairSet: no sim images in this set"):
+    with pytest.raises(TactileBenchError, match="CorpusPairs: no sim images in this set"):
         pairs.foreground("sim")
-    with pytest.raises(TactileBenchError, match=r"PairSet: real_background must be \(B,3,S,S\)"):
-        PairSet(toy.depth, toy.real, torch.zeros(2, 3, S, 4), which)
-    with pytest.raises(TactileBenchError, match="PairSet: meta 't' must have one entry per pair"):
-        PairSet(toy.depth, toy.real, frames, which, meta={"t": np.arange(3)})
+    with pytest.raises(
+        TactileBenchError, match=r"CorpusPairs: real_background must be \(B,3,S,S\)"
+    ):
+        CorpusPairs(toy.depth, toy.real, torch.zeros(2, 3, S, 4), which)
+    with pytest.raises(
+        TactileBenchError, match="CorpusPairs: meta 't' must have one entry per pair"
+    ):
+        CorpusPairs(toy.depth, toy.real, frames, which, meta={"t": np.arange(3)})
 
 
 def test_paired_data_subsets_and_foregrounds_through_the_base() -> None:

@@ -12,7 +12,7 @@ import pytest
 import torch
 from PIL import Image
 
-from tactile_bench.data.pairs import PairSet
+from tactile_bench.data.corpus import CorpusPairs
 from tactile_bench.diagnose.paired import (
     PairedData,
     data_hash,
@@ -122,7 +122,7 @@ def test_tactile_diffusion_pairs_on_several_frames_warn_that_the_first_serves_al
 
     load = tactile_diffusion.load_braille_pairs
 
-    def on_two_frames(*args: Any, **kwargs: Any) -> PairSet:
+    def on_two_frames(*args: Any, **kwargs: Any) -> CorpusPairs:
         pairs = load(*args, **kwargs)  # the release has one frame: give half the pairs another
         frames = torch.cat([pairs.real_background, torch.full_like(pairs.real_background, second)])
         index = torch.arange(len(pairs)) % 2

@@ -203,7 +203,7 @@ def test_jpeg_approximation_close_to_a_real_encoder() -> None:
 def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
     import math
 
-    from tactile_bench.effects.kernels import _conv1d_slices, gaussian_kernel1d
+    from tactile_bench.effects.kernels import conv1d_slices, gaussian_kernel1d
 
     if sx > 4 and sy > 4:  # the wide path: 2x area down, blur, bilinear up
         small = torch.nn.functional.avg_pool2d(x, 2)
@@ -211,7 +211,7 @@ def _ref_blur(x: torch.Tensor, sx: float, sy: float) -> torch.Tensor:
         return torch.nn.functional.interpolate(small, size=x.shape[-2:], mode="bilinear")
     kx = gaussian_kernel1d(torch.tensor(sx), min(64, math.ceil(3 * sx), x.shape[-1] - 1))
     ky = gaussian_kernel1d(torch.tensor(sy), min(64, math.ceil(3 * sy), x.shape[-2] - 1))
-    return _conv1d_slices(_conv1d_slices(x, kx, -1), ky, -2)
+    return conv1d_slices(conv1d_slices(x, kx, -1), ky, -2)
 
 
 @pytest.mark.parametrize(("sx", "sy"), [(0.43, 0.32), (1.6, 1.2), (6.4, 4.8), (17.8, 13.3)])
@@ -229,7 +229,18 @@ def test_matrix_blur_matches_convolution(sx: float, sy: float) -> None:
 
 @pytest.mark.parametrize("smear_mm", [0.1, 1.2])
 def test_shear_smear_matches_shifted_samples(smear_mm: float) -> None:
-    from tactile_bench.effects.kernels import shift_mm
+    from tactile_bench.effects.kernels import pixel_grid
+
+    def shift_mm(x: torch.Tensor, dx_mm: torch.Tensor, dy_mm: torch.Tensor, ctx) -> torch.Tensor:  # type: ignore[no-untyped-def]
+        """``x`` sampled at (p + d), d in mm: the content moves by -d."""
+        n, _, h, w = x.shape
+        uu, vv = pixel_grid(h, w)
+        du = (2.0 * dx_mm / ctx.width_mm).reshape(-1, 1, 1)
+        dv = (2.0 * dy_mm / ctx.height_mm).reshape(-1, 1, 1)
+        grid = torch.stack([(uu + du).expand(n, h, w), (vv + dv).expand(n, h, w)], dim=-1)
+        return torch.nn.functional.grid_sample(
+            x, grid, mode="bilinear", padding_mode="border", align_corners=False
+        )
 
     effect, x = get_effect("shear_smear"), _height(4, 64)
     ours = effect.apply(x, {"smear_mm": smear_mm}, _gen(3), CTX)
@@ -256,10 +267,10 @@ def test_elastic_spread_matches_masked_pyramid() -> None:
 
 
 def _ref_jpeg(x: torch.Tensor, quality: float, hw: tuple[int, int]) -> torch.Tensor:
-    from tactile_bench.effects.camera import _dct_matrix, quant_tables
+    from tactile_bench.effects.camera import dct_matrix, quant_tables
 
     f = torch.nn.functional
-    d2 = torch.kron(_dct_matrix(), _dct_matrix())
+    d2 = torch.kron(dct_matrix(), dct_matrix())
 
     def blocks(plane: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
         n, h, w = plane.shape

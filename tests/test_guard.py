@@ -14,12 +14,12 @@ from pathlib import Path
 import pytest
 
 from tactile_bench.cli import build_parser, main
+from tactile_bench.cli_args import ARG_RULES, OUTPUTS, READ_ONLY
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.guard.args import ARG_RULES, OUTPUTS, READ_ONLY
 from tactile_bench.guard.outputs import OutputLock, check_output_dir, check_output_file, lock_path
 from tactile_bench.guard.safe_yaml import MAX_NODES, load_yaml_file, load_yaml_text
 
-#: argument names that mean an output location: each must be declared in guard.args.OUTPUTS
+#: argument names that mean an output location: each must be declared in cli_args.OUTPUTS
 OUTPUT_DESTS = {"out", "run_dir", "figure", "save_frames"}
 
 
@@ -45,7 +45,7 @@ def test_every_numeric_or_list_argument_of_every_command_has_a_rule() -> None:
         listed = action.nargs in ("*", "+") and action.choices is None
         if (numeric or listed) and action.dest not in ARG_RULES:
             missing.append(f"{command} --{action.dest}")
-    assert not missing, f"arguments without a rule in guard.args.ARG_RULES: {missing}"
+    assert not missing, f"arguments without a rule in cli_args.ARG_RULES: {missing}"
 
 
 def test_every_output_argument_is_declared() -> None:
@@ -55,7 +55,7 @@ def test_every_output_argument_is_declared() -> None:
         for a in acts
         if a.dest in OUTPUT_DESTS and (command, a.dest) not in OUTPUTS.keys() | READ_ONLY
     ]
-    assert not undeclared, f"declare these in guard.args.OUTPUTS: {undeclared}"
+    assert not undeclared, f"declare these in cli_args.OUTPUTS: {undeclared}"
 
 
 @pytest.mark.parametrize(

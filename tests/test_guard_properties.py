@@ -18,9 +18,9 @@ from hypothesis import strategies as st
 from PIL import Image
 
 from tactile_bench.cli import build_parser
+from tactile_bench.cli_args import check_arguments
 from tactile_bench.diagnose.paired import load_paired
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.guard.args import check_arguments
 from tactile_bench.guard.limits import MEMORY_LIMIT_ENV
 from tactile_bench.pipeline.recipe import load_recipe
 

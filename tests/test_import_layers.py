@@ -1,16 +1,25 @@
 """The package imports one way (docs/architecture.md): no module imports another that
 imports it back, counting imports inside functions too, and the layers import only the
-layers below them (issue 20). Read from the source with ``ast``: nothing is imported."""
+layers below them (issue 20). Read from the source with ``ast``: nothing is imported.
+
+Two kinds of edge load a module without an import statement, and count as imports: a
+string naming a package module (``importlib.import_module("tactile_bench.x")``, a list of
+command modules), and an entry point of ``pyproject.toml``, an edge from the module that
+holds its group's name (the loader, e.g. ``translators.registry``) to the module it names.
+"""
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / "tactile_bench"
+import tomllib
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "tactile_bench"
 
 #: layers from the bottom up; a module may import its own layer and those below it. The
-#: longest matching prefix decides (``guard.args`` is above ``guard``).
+#: longest matching prefix decides (``diagnose.commands`` is above ``diagnose``).
 LAYERS: tuple[tuple[str, ...], ...] = (
     (
         "",
@@ -38,21 +47,18 @@ LAYERS: tuple[tuple[str, ...], ...] = (
         "real_presses",
         "testing",
         "check",
-        "guard.args",
-        "guard.recipes",
         "diagnose.commands",
         "diagnose.validate",
     ),
-    ("cli", "__main__"),
+    ("cli", "cli_args", "__main__"),
 )
 
 #: edges against the flow that are known and named here, so the list can only shrink
 KNOWN_UPWARD: dict[tuple[str, str], str] = {
-    # a constant of the memory estimate; it belongs in guard.limits (diagnose/ is another
-    # engineer's while issue 23's and the diagnosis work are open)
-    ("diagnose.paired", "guard.args"): "BYTES_PER_PAIR_PIXEL",
-    # a measurement that reads a real frame with the data layer's checked image reader
-    ("sensor.grounding", "data.images"): "reads a real frame with the data layer's reader",
+    # the calibrated translator is the diagnosis's selected effects as a fitted simulator:
+    # it is built on diagnose.candidates, .which and .run, so in translators/ it would import
+    # them upwards; the registry loads it through its entry point like a plugin's
+    ("translators.registry", "diagnose.calibrated"): "entry point `calibrated`",
 }
 
 
@@ -66,16 +72,30 @@ def _modules() -> dict[str, Path]:
     return found
 
 
+def _entry_points() -> dict[str, list[str]]:
+    """{entry-point group: the modules its entries name} from ``pyproject.toml``."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    return {
+        group: [target.partition(":")[0] for target in entries.values()]
+        for group, entries in project.get("entry-points", {}).items()
+    }
+
+
 def _imports(modules: dict[str, Path]) -> dict[str, set[str]]:
     """{module: package modules it imports anywhere in its file} (names without the
-    ``tactile_bench.`` prefix; ``from pkg import submodule`` counts as the submodule)."""
+    ``tactile_bench.`` prefix; ``from pkg import submodule`` counts as the submodule; a
+    string naming a module, and an entry point from its group's loader, count too)."""
     graph: dict[str, set[str]] = {}
+    groups = _entry_points()
     for name, path in modules.items():
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
         found: set[str] = set()
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             targets: list[str] = []
-            if isinstance(node, ast.Import):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                # an entry-point group's name (its loader), else "pkg.module[:name]"
+                targets = groups.get(node.value, [node.value.partition(":")[0]])
+            elif isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom):
                 if node.level:
@@ -98,7 +118,7 @@ def _imports(modules: dict[str, Path]) -> dict[str, set[str]]:
 
 
 def _short(module: str) -> str | None:
-    """``tactile_bench.data.pairs`` -> ``data.pairs``; None outside the package."""
+    """``tactile_bench.data.corpus`` -> ``data.corpus``; None outside the package."""
     if module == "tactile_bench":
         return ""
     return module.removeprefix("tactile_bench.") if module.startswith("tactile_bench.") else None
@@ -158,6 +178,14 @@ def test_the_cycle_finder_finds_a_cycle() -> None:
 
 def test_every_module_has_a_layer() -> None:
     assert [m for m in _modules() if _layer(m) < 0] == []
+
+
+def test_strings_and_entry_points_count_as_imports() -> None:
+    graph = _imports(_modules())
+    assert "diagnose.calibrated" in graph["translators.registry"]  # pyproject's entry point
+    assert "diagnose.commands" in graph["cli"]  # cli.COMMAND_MODULES, imported by name
+    named = [_short(target) for targets in _entry_points().values() for target in targets]
+    assert named and all(target in _modules() for target in named)
 
 
 def test_layers_import_only_downwards() -> None:

@@ -239,7 +239,7 @@ def test_processed_ycb_copy_is_a_corpus_source(
 ) -> None:
     from data.original_layouts import BGS_OBJECTS, write_ycb_processed
 
-    from tactile_bench.data.pairs import load_pairs
+    from tactile_bench.data.corpus import load_pairs
 
     datasets = tmp_path / "datasets"
     root = write_ycb_processed(datasets, frames=6, logs=2)
@@ -276,6 +276,52 @@ def test_processed_ycb_copy_is_a_corpus_source(
 
     assert bool((corr(as_read, diff) > 0.5).all())
     assert bool((corr(as_read, diff) > corr(flipped, diff) + 0.3).all())
+
+
+def test_processed_ycb_copy_without_its_split_files_gets_one_drawn_into_the_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """As ``get_train_test_idx`` writes it: per log, int(n x 0.2) of the frames test, the
+    rest train, from the recipe's seed; written in the stage folder, never into the copy."""
+    from data.original_layouts import write_ycb_processed
+
+    from tactile_bench.data.corpus import load_pairs
+    from tactile_bench.data.ycb_processed import SPLIT_FILE, make_log_split
+
+    datasets = tmp_path / "datasets"
+    root = write_ycb_processed(datasets, frames=6, logs=2)
+    for split in root.glob(f"dataset/*/*/{SPLIT_FILE}"):
+        split.unlink()
+    capsys.readouterr()
+    assert main(["check", str(root)]) == 0
+    out = capsys.readouterr().out
+    # 2 objects x 2 logs x 6 frames, one test frame a log (int(6 x 0.2)); frame 1 has no
+    # heightmap, so 20 pairs, of which 4 test unless frame 1 was drawn as a log's test frame
+    assert "20 (depth, frame) pairs from 4 logs" in out
+    assert "split: generated for 4 of 4 logs (seed 0, test 0.2)" in out
+    recipe = tmp_path / "ycb.yaml"
+    recipe.write_text(
+        "name: ycb\nseed: 3\nstages:\n  - name: corpus\n    kind: ycb_slide_data\n"
+        f"    config: {{source: {datasets}, image_size: 16}}\n"
+    )
+    assert _fit(recipe, tmp_path / "run") == 0
+    assert not list(root.glob(f"dataset/*/*/{SPLIT_FILE}"))  # the copy is left as it was
+    corpus = _stage_dirs(tmp_path / "run")["corpus"]
+    written = sorted((corpus / "splits").glob(f"*/*/{SPLIT_FILE}"))
+    assert len(written) == 4
+    n_test = 0
+    for path in written:
+        log = root / "dataset" / path.parent.parent.name / path.parent.name
+        with np.load(path) as z:  # the original's reader: np.load(...)["train"], ["test"]
+            train, test = z["train"].tolist(), z["test"].tolist()
+        assert (train, test) == make_log_split(log, seed=3)
+        assert len(test) == 1 and sorted(train + test) == sorted(
+            f.name for f in (log / "frames").glob("*.jpg")
+        )
+        n_test += test != ["frame_0000001.jpg"]  # frame 1 has no heightmap: not a pair
+    assert len(load_pairs(corpus, "test")) == n_test
+    # the seed draws: other seeds pick other test frames
+    assert len({tuple(make_log_split(log, seed)[1]) for seed in range(10)}) > 1
 
 
 def test_ycb_slide_release_backgrounds_are_used_when_present(tmp_path: Path) -> None:

@@ -219,7 +219,7 @@ def test_aggregation_is_the_mean_log_probability_of_the_cell_frames() -> None:
 
 def _tiny_classifier(path: Path) -> Path:
     from tactile_bench.classify.module import BrailleClassifier
-    from tactile_bench.pipeline.stages.classify import save_classifier
+    from tactile_bench.classify.store import save_classifier
 
     torch.manual_seed(0)
     model = BrailleClassifier(num_classes=len(CHARACTERS), width=2, blocks=(1, 1, 1, 1))

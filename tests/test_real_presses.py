@@ -6,6 +6,7 @@ on the real frames skip cleanly when it is not installed (``pip install -e '.[re
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 from pathlib import Path
@@ -16,13 +17,15 @@ import torch
 
 from tactile_bench.cli import main
 from tactile_bench.data import ball_presses
-from tactile_bench.data.ball_presses import load_ball_presses, sphere_depth, taxim_available
+from tactile_bench.data.ball_presses import load_ball_presses, sphere_depth
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.press_grounding import contact_mask, fit_sensor, spread
 from tactile_bench.sensor.response_fit import fit_response, predict_delta
 from tactile_bench.sensor.surrogate import SurrogateDigit
 
-needs_taxim = pytest.mark.skipif(not taxim_available(), reason="taxim not installed ([real])")
+needs_taxim = pytest.mark.skipif(
+    importlib.util.find_spec("taxim") is None, reason="taxim not installed ([real])"
+)
 PIXMM = 0.05  # coarse synthetic frames: 48 x 64 px = 3.2 x 2.4 mm
 
 

@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from tactile_bench.data.images import read_gray, read_image
-from tactile_bench.data.pairs import load_pairs
+from tactile_bench.data.corpus import load_pairs
+from tactile_bench.data.images import read_image, read_mask
 from tactile_bench.data.tactile_diffusion import load_braille_pairs, read_split
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import load_npz
@@ -47,7 +47,7 @@ def _one_line(call: Callable[[], Any]) -> None:
 def _file_loaders() -> dict[str, tuple[str, Callable[[Path], Any]]]:
     return {
         "read_image": (".png", read_image),
-        "read_gray": (".png", read_gray),
+        "read_mask": (".png", read_mask),
         "load_npz": (".npz", lambda p: load_npz(p, ("depth",))),
         "translator_load": (".pt", SimTranslator.load),
         "load_checkpoint": (".pt", load_checkpoint),
@@ -97,7 +97,7 @@ def test_random_images_to_image_readers(image: bytes) -> None:
         path = Path(tmp) / "frame.png"
         path.write_bytes(image)
         _one_line(lambda: read_image(path, 16))
-        _one_line(lambda: read_gray(path, 16))
+        _one_line(lambda: read_mask(path, 16))
 
 
 def _braille_layout(root: Path) -> Path:

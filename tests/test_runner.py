@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 
+from tactile_bench.io import atomic_write_npz
 from tactile_bench.pipeline import stages as stage_registry
 from tactile_bench.pipeline.recipe import load_recipe
 from tactile_bench.pipeline.runner import DONE, run_recipe
@@ -142,6 +146,48 @@ def test_no_progress_reaches_lightning_without_changing_keys(
     assert [r.directory for r in again] == [r.directory for r in quiet]
 
 
+def _fill_disk(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+    (ctx.directory / "small.txt").write_text("fits")
+    atomic_write_npz(ctx.directory / "weights.npz", w=np.zeros(4))  # the disk fills here
+    return {"weights": "weights.npz"}, {}
+
+
+def _fill_disk_raw(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
+    # a write through another library's open file: the OSError carries no file name
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+@pytest.mark.parametrize("run, file", [(_fill_disk, "weights.npz"), (_fill_disk_raw, None)])
+def test_a_full_disk_names_the_stage_the_file_and_the_space_left(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    run: Any,
+    file: str | None,
+) -> None:
+    from tactile_bench.cli import main
+
+    monkeypatch.setitem(
+        stage_registry.STAGES, "fill", StageKind("fill", "test", CountConfig, run, {})
+    )
+
+    def no_space(*args: Any, **kwargs: Any) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as a write() raises it
+
+    monkeypatch.setattr(np, "savez", no_space)
+    path = tmp_path / "r.yaml"
+    path.write_text(f"name: r\nrun_dir: {tmp_path / 'run'}\nstages:\n  - {{name: a, kind: fill}}\n")
+    assert main(["fit", str(path), "--no-progress"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    stage_dir = next((tmp_path / "run").glob("a-*"))
+    written = stage_dir / file if file else stage_dir
+    doing = "while writing it" if file else "while writing there"
+    assert error.startswith(f"error: stage a: {written}: No space left on device {doing}; ")
+    assert error.endswith(" free on the disk of " + str(written if written.exists() else stage_dir))
+    # nothing half-written: no weights file, no temporary file, the stage not marked done
+    assert sorted(p.name for p in stage_dir.iterdir()) == (["small.txt"] if file else [])
+
+
 def test_a_fingerprint_sees_one_changed_pixel_without_a_float64_copy_of_the_data() -> None:
     x = torch.rand(300, 3, 64, 64)
     y = x.clone()
@@ -152,3 +198,20 @@ def test_a_fingerprint_sees_one_changed_pixel_without_a_float64_copy_of_the_data
     exact = x.double()
     assert abs(total - float(exact.sum())) < 1e-9 * float(exact.sum())
     assert abs(squares - float((exact * exact).sum())) < 1e-9 * float((exact * exact).sum())
+
+
+def test_a_full_disk_in_a_command_names_the_command_and_its_output(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from tactile_bench.cli import main
+    from tactile_bench.report import contact_sheet
+
+    def no_space(*args: Any, **kwargs: Any) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(contact_sheet, "render_contact_sheet", no_space)
+    out = tmp_path / "sheet.png"
+    assert main(["render", "--chars", "A", "--out", str(out)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith(f"error: render: {out}: No space left on device while writing there; ")
+    assert error.endswith(f" free on the disk of {tmp_path}")

@@ -16,7 +16,7 @@ from tactile_bench.effects.kernels import area_pool, blur_matrices, gaussian_blu
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.geometry.braille import BrailleSpec, braille_mesh
 from tactile_bench.geometry.contacts import classifier_protocol
-from tactile_bench.sensor.depth import GelSpec, _affine_grid, _sample_maps, render_height
+from tactile_bench.sensor.depth import GelSpec, affine_grid, render_height, sample_maps
 from tactile_bench.sensor.heightfield import build_bank, raycast_heights
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer, embree_available
 from tactile_bench.sensor.optics import SimOptics
@@ -114,12 +114,12 @@ def test_sim_noise_does_not_depend_on_the_batch_split() -> None:
 def test_render_height_fast_paths(bank) -> None:
     theta = torch.randn(5, 2, 3)
     reference = F.affine_grid(theta, [5, 1, 32, 32], align_corners=False)
-    torch.testing.assert_close(_affine_grid(theta, 32), reference, atol=1e-5, rtol=0)
+    torch.testing.assert_close(affine_grid(theta, 32), reference, atol=1e-5, rtol=0)
     gel = GelSpec(size=32)
     poses = classifier_protocol(CHARS).index(torch.arange(0, 80))  # repeats placements
     height = render_height(bank, poses, gel)
     offset = (bank.top_max[poses.labels] - poses.press_mm).view(-1, 1, 1, 1)
-    assert torch.equal(height, _sample_maps(bank, poses, gel, 256, 64) - offset)
+    assert torch.equal(height, sample_maps(bank, poses, gel, 256, 64) - offset)
     x = torch.rand(3, 2, 12, 12)
     assert torch.equal(area_pool(x, 2), F.avg_pool2d(x, 2))
     assert torch.equal(area_pool(x, 3), F.avg_pool2d(x, 3))
@@ -138,9 +138,9 @@ def test_factored_blur_equals_its_matrices(sigma: tuple[float, float]) -> None:
 )
 def test_narrow_blur_by_taps_equals_the_matrices(shape: tuple, sigma: tuple) -> None:
     """Narrow blurs (radius <= 5 px) run as shifted adds: the same blur as the matrices."""
-    from tactile_bench.effects.kernels import _cached_small_taps
+    from tactile_bench.effects.kernels import small_blur_taps
 
-    assert _cached_small_taps(shape[2], shape[3], *sigma, 64) is not None  # the taps path
+    assert small_blur_taps(shape[2], shape[3], *sigma, 64) is not None  # the taps path
     x = torch.rand(*shape) * 255
     my, mx = blur_matrices(shape[2], shape[3], *sigma)
     got = gaussian_blur(x, *map(torch.tensor, sigma))
@@ -211,7 +211,7 @@ def test_embree_fast_path_matches_the_generic_ray_path() -> None:
     poses[:, :3, :3] = np.diag([1.0, -1.0, -1.0])  # looking down -z onto the sphere's top
     poses[:, :3, 3] = np.column_stack([rng.normal(0, 2, (6, 2)), np.full(6, 19.5)])
     fast = renderer.render_height(poses)
-    reference = renderer._render_rays(poses)
+    reference = renderer.render_rays(poses)
     torch.testing.assert_close(fast, reference, atol=1e-4, rtol=0)
     assert float(fast.amax()) > 0.4  # pressed into the sphere
 

@@ -1,4 +1,4 @@
-"""The YCB-Slide stand-in corpus: shards, split by trajectory, resume, PairSet round trip."""
+"""The YCB-Slide stand-in corpus: shards, split by trajectory, resume, CorpusPairs round trip."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from tactile_bench.data.pairs import PairSet, load_pairs
+from tactile_bench.data.corpus import CorpusPairs, load_pairs
 from tactile_bench.data.ycb_slide import StandinConfig, build_ycb_slide_standin
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec
@@ -106,6 +106,36 @@ def test_rerun_reuses_and_resumes(corpus: tuple[Path, dict], tmp_path: Path) -> 
     assert [s["sha256"] for s in resumed["shards"]] == [s["sha256"] for s in full["shards"]]
 
 
+def test_a_trajectory_without_a_valid_contact_is_an_empty_shard(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A small corpus (two frames a trajectory) can have a trajectory whose every frame would
+    collide (``--pairs 100`` on the default objects: the wrench's fifth): the corpus is built
+    with that trajectory's shard empty, not refused."""
+    from tactile_bench.data import ycb_workers
+
+    real_pairs = ycb_workers.trajectory_pairs
+
+    def colliding_fifth(renderer, traj, *args):  # type: ignore[no-untyped-def]
+        *settings, chunks = args  # the fifth trajectory renders no chunk: no valid frame
+        return real_pairs(renderer, traj, *settings, range(0) if traj.index == 4 else chunks)
+
+    monkeypatch.setattr(ycb_workers, "trajectory_pairs", colliding_fifth)
+    config = StandinConfig(n_pairs=10, objects=OBJS[:1])
+    manifest = build_ycb_slide_standin(
+        tmp_path, config=config, real_sensor=StubSensor(), progress=False, workers=1
+    )
+    assert [s["n"] for s in manifest["shards"]] == [2, 2, 2, 2, 0]
+    assert manifest["frames_dropped"] == 2
+    assert len(load_pairs(tmp_path, "all")) == 8
+    # a split whose only trajectory is the empty one is refused by name, not loaded empty
+    for shard in manifest["shards"]:
+        shard["split"] = "test" if shard["n"] == 0 else "train"
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(TactileBenchError, match="no 'test' pairs"):
+        load_pairs(tmp_path, "test")
+
+
 def test_bad_config_and_files(tmp_path: Path) -> None:
     with pytest.raises(TactileBenchError, match="unknown objects"):
         StandinConfig(objects=("999_anvil",))
@@ -132,20 +162,20 @@ def test_corrupt_shard_is_named(corpus: tuple[Path, dict], tmp_path: Path) -> No
 
 def test_pairset_validates() -> None:
     with pytest.raises(TactileBenchError, match="depth"):
-        PairSet(
+        CorpusPairs(
             torch.zeros(2, 3, 8, 8),
             torch.zeros(2, 3, 8, 8, dtype=torch.uint8),
             torch.zeros(3, 8, 8),
             torch.zeros(2),
         )
     with pytest.raises(TactileBenchError, match="NaN"):
-        PairSet(
+        CorpusPairs(
             torch.full((1, 1, 8, 8), float("nan")),
             torch.zeros(1, 3, 8, 8, dtype=torch.uint8),
             torch.zeros(3, 8, 8),
             torch.zeros(1),
         )
-    p = PairSet(
+    p = CorpusPairs(
         torch.zeros(4, 1, 8, 8),
         torch.zeros(4, 3, 8, 8, dtype=torch.uint8),
         torch.zeros(3, 8, 8),

@@ -16,7 +16,8 @@ def _table(header: list[str], rows: list[list[Any]]) -> list[str]:
     return lines + [""]
 
 
-def _f(x: float | None, digits: int = 2) -> str:
+def _number(x: float | None, digits: int = 2) -> str:
+    """``x`` to ``digits`` decimals (thousands grouped, no decimals); "-" for None."""
     if x is None:
         return "-"
     if abs(x) >= 1000:
@@ -43,7 +44,7 @@ def _bf16_line(m: dict[str, Any]) -> str:
         f"- bf16 arithmetic on this CPU ({m['cpu_capability']}): {native}; `precision: auto` "
         f"(the default of every config) runs {m['auto_precision']} here. Every bf16 figure "
         f"below holds for {m['cpu_capability']} only: AVX-512-BF16 and AMX CPUs run bf16 "
-        "1.3-1.9x faster than fp32."
+        "faster than fp32 (docs/results/code_figures.md)."
     )
 
 
@@ -119,15 +120,15 @@ def _sampler_table(samples: list[dict[str, Any]], ddpm: str) -> list[str]:
                 name,
                 s["steps"],
                 s["images"],
-                _f(s["images_per_s"], 3),
-                _f(s["images_per_cpu_s"], 3),
-                _f(s["speedup_vs_ddpm500"], 1),
-                _f(s["cpu_speedup_vs_ddpm500"], 1),
-                _f(s["ssim"], 4),
+                _number(s["images_per_s"], 3),
+                _number(s["images_per_cpu_s"], 3),
+                _number(s["speedup_vs_ddpm500"], 1),
+                _number(s["cpu_speedup_vs_ddpm500"], 1),
+                _number(s["ssim"], 4),
                 f"{s['ssim_minus_ddpm500']:+.4f}",
-                _f(s["mse"], 2),
-                _f(s["texture"], 2),
-                _f(s["evals_per_s"], 0),
+                _number(s["mse"], 2),
+                _number(s["texture"], 2),
+                _number(s["evals_per_s"], 0),
             ]
         )
     return _table(
@@ -161,12 +162,12 @@ def _default_against_targets(r: dict[str, Any], ddpm: str) -> list[str]:
         f"{_precision(default)} on {r['machine']['cpu_capability']}, channels_last "
         f"{default['channels_last']}, chunks of {default['sample_batch_size']}): targets {met}.",
         "",
-        f"- {_f(check['speedup_vs_ddpm500']['value'], 1)}x the images/s of {ddpm} "
+        f"- {_number(check['speedup_vs_ddpm500']['value'], 1)}x the images/s of {ddpm} "
         f"(target >= {check['speedup_vs_ddpm500']['target']:.0f}x); {ddpm} ran at "
-        f"{_f(base['images_per_s'], 3)} img/s.",
+        f"{_number(base['images_per_s'], 3)} img/s.",
         f"- SSIM {check['ssim_minus_ddpm500']['value']:+.4f} against {ddpm}'s "
-        f"{_f(base['ssim'], 4)} (target: no lower than -0.01).",
-        f"- {_f(check['images_per_s']['value'], 1)} images/s on the large set with "
+        f"{_number(base['ssim'], 4)} (target: no lower than -0.01).",
+        f"- {_number(check['images_per_s']['value'], 1)} images/s on the large set with "
         f"{r['machine']['torch_threads']} thread(s) at 64 x 64 (target >= 10; the paper: "
         "30 images in 23 s = 1.3 images/s on an RTX-3080).",
         "",
@@ -189,9 +190,9 @@ def _default_speed_sources(d: dict[str, Any], cpu_capability: str) -> list[str]:
                     _precision(v),
                     v["channels_last"],
                     v["batch"],
-                    _f(v["images_per_s"], 2),
-                    _f(v["images_per_cpu_s"], 2),
-                    _f(v["vs_default"], 2),
+                    _number(v["images_per_s"], 2),
+                    _number(v["images_per_cpu_s"], 2),
+                    _number(v["vs_default"], 2),
                 ]
                 for v in variants
             ],
@@ -206,15 +207,15 @@ def _default_speed_sources(d: dict[str, Any], cpu_capability: str) -> list[str]:
                 [
                     name,
                     f"{p['params'] / 1e6:.2f} M",
-                    _f(p["evals_per_s"], 1),
-                    _f(p["ddpm500_images_per_s"], 4),
-                    _f(p["evals_per_s"] / steps, 2),
+                    _number(p["evals_per_s"], 1),
+                    _number(p["ddpm500_images_per_s"], 4),
+                    _number(p["evals_per_s"] / steps, 2),
                 ]
                 for name, p in d["presets"].items()
             ],
         ),
-        "torch.compile was tried and is not used: about 2 minutes to compile on this CPU "
-        "for about 1.25x per network evaluation.",
+        "torch.compile is not used: its compile time outweighs its gain per network "
+        "evaluation at these sizes (docs/results/code_figures.md).",
         "",
     ]
 
@@ -266,10 +267,10 @@ def _threads(r: dict[str, Any]) -> list[str]:
         rows.append(
             [
                 t["setting"],
-                _f(t["images_per_s"], 2),
-                _f(t["images_per_cpu_s"], 2),
-                _f(t.get("vs_first"), 2),
-                _f(t["ssim"], 4),
+                _number(t["images_per_s"], 2),
+                _number(t["images_per_cpu_s"], 2),
+                _number(t.get("vs_first"), 2),
+                _number(t["ssim"], 4),
             ]
         )
     return [
@@ -282,8 +283,7 @@ def _threads(r: dict[str, Any]) -> list[str]:
         "`OMP_WAIT_POLICY=PASSIVE` unless the environment sets it; `--threads 1` is the "
         "other safe choice on a busy machine. `diagnose` and `validate-diagnosis` are the "
         "exception: their thousands of small ops lose more to waking sleeping threads than "
-        "spinning costs (300 pairs: 116 s PASSIVE, 80 s with the runtime's default, on an "
-        "idle 2-core AVX-512 machine), so they leave the runtime's default.",
+        "spinning costs (docs/results/code_figures.md), so they leave the runtime's default.",
         "",
     ]
 
@@ -295,10 +295,10 @@ def _phases(section: dict[str, Any], unit: str) -> list[str]:
     rows = [
         [
             name,
-            _f(s["per_s"], 0),
-            _f(1000 * s["median_wall_s"] / s["work"], 3),
+            _number(s["per_s"], 0),
+            _number(1000 * s["median_wall_s"] / s["work"], 3),
             f"{100 * s['share']:.0f} %",
-            _f(s["peak_mib"], 1),
+            _number(s["peak_mib"], 1),
         ]
         for name, s in sorted(phases.items(), key=lambda kv: _PHASE_ORDER.get(kv[0], 9))
     ]
@@ -311,22 +311,22 @@ def _simulation(r: dict[str, Any]) -> list[str]:
     return [
         "## Contact simulation",
         "",
-        f"- braille: **{_f(s['braille_contacts_per_s'], 0)} contacts/s** end to end "
+        f"- braille: **{_number(s['braille_contacts_per_s'], 0)} contacts/s** end to end "
         f"(`render_braille_set`: depth + sim image + surrogate-real image, "
-        f"{b['scaling']['4x']['work']:.0f} contacts, {_f(b['scaling']['4x']['per_cpu_s'], 0)} "
+        f"{b['scaling']['4x']['work']:.0f} contacts, {_number(b['scaling']['4x']['per_cpu_s'], 0)} "
         f"per CPU-s); one-off height-field bank "
-        f"{_f(b['setup_bank_s'], 2)} s.",
+        f"{_number(b['setup_bank_s'], 2)} s.",
         f"- pretraining objects ({', '.join(o['objects'])}): "
-        f"**{_f(s['object_frames_per_s'], 1)} frames/s** end to end "
+        f"**{_number(s['object_frames_per_s'], 1)} frames/s** end to end "
         f"(`build_ycb_slide_standin`, shards written, {o['scaling']['4x']['work']:.0f} frames, "
-        f"{_f(o['scaling']['4x']['per_cpu_s'], 1)} per CPU-s with the workers' CPU); "
-        f"one-off scene (mesh, ray-casting scene, trajectory) {_f(o['setup_scene_s'], 2)} s"
+        f"{_number(o['scaling']['4x']['per_cpu_s'], 1)} per CPU-s with the workers' CPU); "
+        f"one-off scene (mesh, ray-casting scene, trajectory) {_number(o['setup_scene_s'], 2)} s"
         + (
             f"; worker start-up (spawn, imports: once a process, in an untimed first build "
-            f"of {o['scaling']['1x']['work']:.0f} frames) {_f(o['first_build_s'], 1)} s; "
+            f"of {o['scaling']['1x']['work']:.0f} frames) {_number(o['first_build_s'], 1)} s; "
             f"marginal rate of the frames a bigger build adds (2x -> 4x, fixed costs cancel) "
-            f"{_f(o['marginal']['frames_per_s'], 1)} frames/s, "
-            f"{_f(o['marginal']['frames_per_cpu_s'], 1)} per CPU-s"
+            f"{_number(o['marginal']['frames_per_s'], 1)} frames/s, "
+            f"{_number(o['marginal']['frames_per_cpu_s'], 1)} per CPU-s"
             if "marginal" in o
             else ""
         )
@@ -354,8 +354,9 @@ def _training(r: dict[str, Any]) -> list[str]:
     for model, row in t.items():
         cells = [model]
         for v in variants:
-            cells.append(f"{_f(row[v]['images_per_s'], 1)} ({_f(row[v]['speedup_vs_fp32'], 2)}x)")
-        cells.append(_f(max(row[v]["peak_mib"] for v in variants), 0))
+            rate, speedup = row[v]["images_per_s"], row[v]["speedup_vs_fp32"]
+            cells.append(f"{_number(rate, 1)} ({_number(speedup, 2)}x)")
+        cells.append(_number(max(row[v]["peak_mib"] for v in variants), 0))
         rows.append(cells)
 
     def label(variant: str) -> str:
@@ -378,8 +379,9 @@ def _training(r: dict[str, Any]) -> list[str]:
         *_table(["model", *[label(v) for v in variants], "peak MiB"], rows),
         f"All figures measured on {cap}. {picks}bf16 = `precision='bf16-mixed'` (autocast): "
         "its x fp32 holds for this CPU capability only (without AVX-512-BF16 or AMX bf16 is "
-        "emulated: far below 1x; with them 1.3-1.9x). channels_last = weights converted "
-        "once, activations follow. Medians over the timed steps after warm-up steps.",
+        "emulated: far below 1x; with them above 1x, docs/results/code_figures.md). "
+        "channels_last = weights converted once, activations follow. Medians over the "
+        "timed steps after warm-up steps.",
         "",
     ]
 
@@ -402,11 +404,11 @@ def _scaling(r: dict[str, Any]) -> list[str]:
                 [
                     f"simulation: {name}",
                     key,
-                    _f(row["work"], 0),
-                    _f(row["median_wall_s"], 2),
-                    _f(row["per_s"], 1),
-                    _f(lin, 2),
-                    _f(row["peak_mib"], 0),
+                    _number(row["work"], 0),
+                    _number(row["median_wall_s"], 2),
+                    _number(row["per_s"], 1),
+                    _number(lin, 2),
+                    _number(row["peak_mib"], 0),
                 ]
             )
             if abs(lin - 1) > NONLINEAR:
@@ -419,10 +421,10 @@ def _scaling(r: dict[str, Any]) -> list[str]:
                     f"one epoch: {name}",
                     key,
                     row["images"],
-                    _f(row["epoch_s"], 2),
-                    _f(row["images_per_s"], 1),
-                    _f(lin, 2),
-                    _f(row["peak_mib"], 0),
+                    _number(row["epoch_s"], 2),
+                    _number(row["images_per_s"], 1),
+                    _number(lin, 2),
+                    _number(row["peak_mib"], 0),
                 ]
             )
             if abs(lin - 1) > NONLINEAR:
@@ -449,10 +451,10 @@ def _startup(r: dict[str, Any]) -> list[str]:
         "",
         f"Each command in a fresh interpreter, median of {len(st['rows'][0]['runs_s'])} "
         f"runs. Every `--help` under {st['target_help_s']:g} s: {verdict} (slowest "
-        f"{_f(st['slowest_help_s'], 2)} s). `list effects` loads torch, for scale.",
+        f"{_number(st['slowest_help_s'], 2)} s). `list effects` loads torch, for scale.",
         "",
     ]
-    rows = [[f"`{row['command']}`", _f(row["median_s"], 2)] for row in st["rows"]]
+    rows = [[f"`{row['command']}`", _number(row["median_s"], 2)] for row in st["rows"]]
     return lines + _table(["command", "wall s"], rows)
 
 
@@ -482,12 +484,12 @@ def _jpeg(r: dict[str, Any]) -> list[str]:
             f"`{row['setting']}`",
             row["quality"],
             row["codec"],
-            _f(row["images_per_s"], 1),
-            _f(row["fwd_bwd_images_per_s"], 1),
-            _f(row["mae_vs_libjpeg"], 3),
-            "identical" if row["psnr_vs_libjpeg"] is None else _f(row["psnr_vs_libjpeg"], 1),
-            _f(row["max_abs_vs_libjpeg"], 1),
-            _f(row["mae_vs_input"], 2),
+            _number(row["images_per_s"], 1),
+            _number(row["fwd_bwd_images_per_s"], 1),
+            _number(row["mae_vs_libjpeg"], 3),
+            "identical" if row["psnr_vs_libjpeg"] is None else _number(row["psnr_vs_libjpeg"], 1),
+            _number(row["max_abs_vs_libjpeg"], 1),
+            _number(row["mae_vs_input"], 2),
         ]
         for row in j["rows"]
     ]

@@ -61,11 +61,6 @@ def taxim_pack_dir(sensor: str) -> Path:
     return path
 
 
-def taxim_available() -> bool:
-    """True when the ``taxim`` package (and so its real frames) can be found."""
-    return importlib.util.find_spec("taxim") is not None
-
-
 def resolve_pack(source: str | Path) -> tuple[Path, str]:
     """(folder, sensor name) for a Taxim sensor name or a folder in the pack layout."""
     if str(source) in TAXIM_SENSORS:

@@ -174,7 +174,7 @@ def render_braille_set(
     args = (bank, poses, gel, sim_optics, sim_background.float(), real_sensor, chunk, bar)
     previous = torch.get_num_threads()
     # torch on one thread either way: on ops this small, intra-op threads cost more than they
-    # give (and busy-wait for the CPU when the machine is shared: ~10x slower measured)
+    # give (and busy-wait for the CPU when the machine is shared; docs/results/code_figures.md)
     torch.set_num_threads(1)
     try:
         if parallel:
@@ -253,10 +253,10 @@ def _render_parallel(
 
     Parts start where a sequential render starts a batch of draws: on the real sensor's
     chunks (``unit``) when ``chunk`` is a multiple of it, else on ``chunk`` boundaries. The
-    generators of part i + 1 are advanced (``skip_random``, batch by batch, ~5% of a
-    render) in this thread while the earlier parts render and part i + 1 makes its sim
+    generators of part i + 1 are advanced (``skip_random``, batch by batch, a small share
+    of a render) in this thread while the earlier parts render and part i + 1 makes its sim
     depths, which draw nothing: the skip then keeps no core waiting. The earlier parts get
-    ~3% more contacts where the batches allow, for the skip's share of the cores.
+    a few more contacts where the batches allow, for the skip's share of the cores.
     """
     _, poses, gel, sim_optics, _, real_sensor, chunk, _ = args
     n = len(poses)

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from tactile_bench.data.braille import BrailleSet
-from tactile_bench.data.pairs import PairSet
+from tactile_bench.data.corpus import CorpusPairs
 from tactile_bench.data.pixels import to_uint8
 from tactile_bench.data.tactile_diffusion import (
     SIM_BACKGROUND_ID,
@@ -52,7 +52,7 @@ SIM_RELEASE_CONTENT = {"has_sim": True, "has_real": False, "has_depth": False}
 
 
 def _single(background: torch.Tensor) -> torch.Tensor:
-    """The layout has one real no-contact frame; PairSet stacks them (K, 3, S, S)."""
+    """The layout has one real no-contact frame; CorpusPairs stacks them (K, 3, S, S)."""
     return background[0] if background.dim() == 4 else background
 
 
@@ -65,7 +65,7 @@ def _unposed(labels: torch.Tensor, depth: torch.Tensor) -> Poses:
 
 
 def _pairs_set(
-    pairs: PairSet, sim_background: torch.Tensor, generator: torch.Generator, gel: GelSpec
+    pairs: CorpusPairs, sim_background: torch.Tensor, generator: torch.Generator, gel: GelSpec
 ) -> BrailleSet:
     labels = torch.as_tensor(pairs.meta["label"], dtype=torch.int64)
     sim = SimOptics().render(pairs.depth, sim_background.float(), generator, gel)

@@ -23,10 +23,7 @@ import torch
 from PIL import Image
 
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.guard.images import open_header
-
-#: colour modes that hold a 3-channel RGB frame (a palette PNG expands to RGB)
-RGB_MODES = ("RGB", "P")
+from tactile_bench.guard.images import RGB_MODES, open_image
 
 #: Pillow's modes of 16- and 32-bit integer grey; ``cv2.imread`` keeps their high byte
 _WIDE_GREY = ("I;16", "I;16B", "I;16L", "I")
@@ -58,28 +55,6 @@ class SameSize:
                 f"{path}: {w} x {h} pixels, but {self.first} is {self.size[0]} x "
                 f"{self.size[1]}: all {self.what} of a dataset must share one size"
             )
-
-
-def open_image(path: Path) -> Image.Image:
-    """The fully decoded image, or a one-line error saying what is wrong with the file."""
-    path = Path(path)
-    try:
-        with open_header(path) as im:  # size and pixel count from the header, then decode
-            im.load()  # decode now: a truncated file fails here
-            return im.copy()
-    except TactileBenchError:
-        raise
-    except FileNotFoundError:
-        raise TactileBenchError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise TactileBenchError(f"{path}: is a folder, not an image") from None
-    except Image.DecompressionBombError as exc:
-        raise TactileBenchError(f"{path}: image too large to be a sensor frame ({exc})") from None
-    except Exception as exc:  # PIL raises OSError, SyntaxError, ValueError ... on bad bytes
-        reason = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
-        raise TactileBenchError(
-            f"{path}: not a readable image (corrupt or truncated? {reason})"
-        ) from None
 
 
 def _channels(im: Image.Image) -> str:
@@ -140,32 +115,6 @@ def read_image(path: Path, size: int | None = None, same: SameSize | None = None
     _note_mode(Path(path), im)
     im = area_resized(as_imread_colour(im, Path(path)), size)
     return torch.from_numpy(np.asarray(im, dtype=np.uint8).copy()).permute(2, 0, 1)
-
-
-def read_gray(path: Path, size: int | None = None, same: SameSize | None = None) -> np.ndarray:
-    """(S, S) float64 grey levels 0..255 of an 8-bit grey image (a TACTO depth mask).
-
-    Grey stored as RGB with three equal channels is accepted; a 16-bit or colour image is
-    an error (its levels would not be the 0.03 mm steps the layout defines).
-    """
-    im = open_image(path)
-    if im.mode in ("RGB", "RGBA"):
-        arr = np.asarray(im.convert("RGB"))
-        if not (
-            np.array_equal(arr[..., 0], arr[..., 1]) and np.array_equal(arr[..., 0], arr[..., 2])
-        ):
-            raise TactileBenchError(
-                f"{path}: a colour image ({_channels(im)}) where an 8-bit grey depth mask "
-                "was expected"
-            )
-        im = im.convert("L")
-    elif im.mode != "L":
-        raise TactileBenchError(
-            f"{path}: {_channels(im)}; a depth mask here is 8-bit grey (mode L, 0.03 mm a level)"
-        )
-    if same is not None:
-        same.check(Path(path), im.size)
-    return np.asarray(area_resized(im, size), dtype=np.float64)
 
 
 #: cv2's COLOR_RGB2GRAY weights. dataio_braille.py applies it to what cv2.imread gives (B, G, R

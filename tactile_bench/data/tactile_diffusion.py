@@ -38,13 +38,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tactile_bench.data.images import open_image
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
+from tactile_bench.guard.images import open_image
 from tactile_bench.sensor.depth import GelSpec
 
+from .corpus import CorpusPairs
 from .images import SameSize, is_hidden, read_image, read_mask
-from .pairs import PairSet
 
 REAL_BACKGROUND_ID = 10044  # the real DIGIT's no-contact frame in the release
 SIM_BACKGROUND_ID = 11  # braille_clf/data/dataio.py: bg_11 under sim_tacto training
@@ -219,7 +219,7 @@ def load_braille_pairs(
     mm_per_level: float = MM_PER_LEVEL,
     background_id: int = REAL_BACKGROUND_ID,
     skipped: Skipped | None = None,
-) -> PairSet:
+) -> CorpusPairs:
     """(TACTO depth, real DIGIT frame) pairs of ``<root>/<subset>`` for ``split``.
 
     ``split`` is "train", "test" (from ``files_train_test.npy``), "all" (every file in
@@ -274,7 +274,7 @@ def load_braille_pairs(
         what = "split" if isinstance(split, dict) else repr(split)
         raise TactileBenchError(f"{base}: no {what} images")
     n = len(depths)
-    return PairSet(
+    return CorpusPairs(
         depth=torch.stack(depths),
         real=torch.stack(reals),
         real_background=bg,

@@ -95,8 +95,8 @@ def settle_press(
     before the full render. On curved objects most frames start millimetres off, and the
     probe costs 1/16 of the re-render it saves; frames found close are not touched (their
     result is the one without the probe, to ~1e-8 mm of float rounding). The probe acts as
-    one more correction, so a few frames two passes left unsettled (dropped as collisions)
-    now settle (+4 of 270 frames on mug, scissors, sugar box). None: no probe.
+    one more correction, so a few frames two passes would leave unsettled (dropped as
+    collisions) settle. None: no probe.
     """
     with timed_span("settle"):
         return _settle_press(renderer, poses, press_mm, passes, peak_step)

@@ -15,14 +15,17 @@ pixels of ``pixmm`` = 0.03 mm (``ycb_slide_sim/config/config.yaml``), flipped on
 that it lies as the real frame does, cast to 8 bits by ``cv2.imwrite``. So a grey level is
 0.03 mm, and the file is paired with the frame as stored, without another flip. The split is
 the copy's own (``get_train_test_idx``: 20% of each log's frames at random, not by
-trajectory); frames the mocap cleanup removed have no heightmap (``touch_simulator.py``
-deletes them from ``frames_depth``) and are left out, as the original's loader skips a frame
-it cannot read.
+trajectory). A log without its ``files_train_test.npz`` gets one drawn the same way
+(:func:`make_log_split`, from a seed), written where the run writes, never into the copy, as
+the braille release's split is (``tactile_diffusion.split_for_run``). Frames the mocap
+cleanup removed have no heightmap (``touch_simulator.py`` deletes them from
+``frames_depth``) and are left out, as the original's loader skips a frame it cannot read.
 """
 
 from __future__ import annotations
 
 import os
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -30,10 +33,11 @@ import numpy as np
 import torch
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.io import atomic_write_npz
 from tactile_bench.sensor.depth import GelSpec
 
+from .corpus import CorpusPairs
 from .images import is_hidden, read_image, read_mask
-from .pairs import PairSet
 from .tactile_diffusion import MM_PER_LEVEL
 
 #: ``bgs_objects`` of Tactile-Diffusion's ``utils/misc.py``: each object's background frame
@@ -68,6 +72,50 @@ def released_background(bgs: Path, object_name: str) -> Path | None:
     return path if i is not None and path.is_file() else None
 
 
+#: each log's split file, as ``get_train_test_idx`` writes it
+SPLIT_FILE = "files_train_test.npz"
+#: ``split_ycb_dataset``'s default: the share of a log's frames in its test list
+TEST_RATIO = 0.2
+
+
+def make_log_split(
+    log: Path, seed: int, test_ratio: float = TEST_RATIO
+) -> tuple[list[str], list[str]]:
+    """``get_train_test_idx`` of Tactile-Diffusion's ``utils/misc.py`` for one log: of the
+    ``.jpg`` files in ``frames/``, ``int(n * test_ratio)`` at random are test, the rest train.
+
+    The original draws with Python's global ``random``; here a generator seeded by ``seed``
+    and the log's own path (object and ``dataset_<k>``) makes each log's split repeatable
+    whichever other logs are read. Files are sorted first (``listdir`` order is the
+    filesystem's)."""
+    frames = sorted(f.name for f in (log / "frames").glob("*.jpg") if not is_hidden(f))
+    key = zlib.crc32(f"{log.parent.name}/{log.name}".encode())
+    rng = np.random.default_rng([seed, key])
+    test_idx = set(rng.choice(len(frames), int(len(frames) * test_ratio), replace=False).tolist())
+    train = [f for i, f in enumerate(frames) if i not in test_idx]
+    return train, [frames[i] for i in sorted(test_idx)]
+
+
+def save_log_split(train: list[str], test: list[str], path: Path) -> Path:
+    """Write a log's split as the original does (``np.savez(train=..., test=...)``)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return atomic_write_npz(
+        path, train=np.asarray(train, dtype=str), test=np.asarray(test, dtype=str)
+    )
+
+
+def _log_split(log: Path, seed: int, write_to: Path | None) -> tuple[list[str], list[str], bool]:
+    """A log's (train, test) files: its own split file, else one drawn by
+    :func:`make_log_split` (written under ``write_to/<object>/<log>/`` when given); and
+    whether it was drawn."""
+    if (log / SPLIT_FILE).exists():
+        return (*_read_split(log / SPLIT_FILE), False)
+    train, test = make_log_split(log, seed)
+    if write_to is not None:
+        save_log_split(train, test, write_to / log.parent.name / log.name / SPLIT_FILE)
+    return train, test, True
+
+
 def _read_split(path: Path) -> tuple[list[str], list[str]]:
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -88,12 +136,16 @@ def load_ycb_processed(
     mm_per_level: float = MM_PER_LEVEL,
     stride: int = 1,
     skipped: list[tuple[str, str]] | None = None,
-) -> tuple[PairSet, dict[str, object]]:
+    seed: int = 0,
+    write_splits_to: Path | None = None,
+) -> tuple[CorpusPairs, dict[str, object]]:
     """(depth, real frame) pairs of the processed copy, and what was read.
 
     ``meta["test"]`` marks the copy's test frames; ``meta`` also has object, trajectory (one
     per log) and frame. The background of each object is its ``bgs_objects`` frame, or the
-    log's first listed frame when that file is absent (said in the returned info).
+    log's first listed frame when that file is absent (said in the returned info). A log
+    without its split file gets one from :func:`make_log_split` (``seed``), written to
+    ``write_splits_to/<object>/dataset_<k>/files_train_test.npz`` when given.
     """
     gel = gel or GelSpec()
     base = _processed_base(root)
@@ -103,6 +155,7 @@ def load_ycb_processed(
     meta: dict[str, list[int]] = {"object": [], "trajectory": [], "frame": [], "test": []}
     bg_index: list[int] = []
     no_depth, sources = 0, {}
+    generated: list[str] = []
     trajectory = 0
     for o, name in enumerate(names):
         logs = sorted(
@@ -111,7 +164,8 @@ def load_ycb_processed(
         )
         released = released_background(base / "bgs", name)
         for log in logs:
-            train, test = _read_split(log / "files_train_test.npz")
+            train, test, drawn = _log_split(log, seed, write_splits_to)
+            generated += [f"{name}/{log.name}"] if drawn else []
             listed = [(f, 0) for f in train] + [(f, 1) for f in test]
             listed = sorted(listed)[::stride]
             read, missing = _read_listed(log, listed, gel, mm_per_level, skipped)
@@ -131,7 +185,7 @@ def load_ycb_processed(
             trajectory += 1
     if not depths:
         raise TactileBenchError(f"{data}: no (frame, frames_depth) pairs")
-    pairs = PairSet(
+    pairs = CorpusPairs(
         depth=torch.stack(depths),
         real=torch.stack(reals),
         real_background=torch.stack(bgs),
@@ -144,6 +198,12 @@ def load_ycb_processed(
         "listed_without_depth": no_depth,
         "backgrounds": sources,
         "mm_per_level": mm_per_level,
+        "splits": (
+            f"generated for {len(generated)} of {trajectory} logs (seed {seed}, test "
+            f"{TEST_RATIO}): {', '.join(generated)}"
+            if generated
+            else f"each log's {SPLIT_FILE}"
+        ),
     }
     return pairs, info
 

@@ -22,8 +22,8 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.depth import GelSpec, to_depth
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 
+from .corpus import CorpusPairs
 from .images import SameSize, read_image
-from .pairs import PairSet
 from .ycb_processed import released_background
 
 #: the DIGIT camera sits this far behind the gel (YCB-Slide ``cam2gel(..., cam_dist=0.022)``)
@@ -169,7 +169,7 @@ def load_ycb_slide_real(
     snap_to_surface: bool = True,
     progress: bool = False,
     skipped: list[tuple[str, str]] | None = None,
-) -> PairSet:
+) -> CorpusPairs:
     """(sim depth, real frame) pairs of the YCB-Slide real logs under ``root``.
 
     For each ``real/<object>/dataset_<k>``: read ``synced_data.npy`` and the object's
@@ -217,7 +217,7 @@ def load_ycb_slide_real(
         meta["frame"].append(idx)
     for renderer, _ in renderers.values():
         renderer.close()
-    return PairSet(
+    return CorpusPairs(
         depth=torch.cat(depths),
         real=torch.cat(reals),
         real_background=torch.stack(bgs),

@@ -44,7 +44,7 @@ from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
 from tactile_bench.sensor.timing import timed_span
 
-from .pairs import FORMAT, PairSet, read_manifest, write_backgrounds
+from .corpus import FORMAT, CorpusPairs, read_manifest, write_backgrounds
 from .pixels import to_uint8
 from .ycb_frames import (
     DEFAULT_PAIRS,
@@ -80,7 +80,7 @@ def build_ycb_slide_standin(
     ``manifest.json`` (written last). A rerun with the same settings reuses the shards
     already on disk, so a killed build resumes; other settings start over. Defaults: the
     64 x 64 gel, ``SimOptics()`` over ``sim_background(size)``, the surrogate DIGIT's
-    ``digit`` profile. Read it back with ``data.pairs.load_pairs(out_dir, split)``.
+    ``digit`` profile. Read it back with ``data.corpus.load_pairs(out_dir, split)``.
     Objects are built in ``workers`` processes (default: ``torch.get_num_threads()``, so
     ``--threads 2`` uses both cores); the corpus does not depend on it.
     """
@@ -279,7 +279,7 @@ __all__ = [
 
 
 def write_corpus(
-    pairs: PairSet,
+    pairs: CorpusPairs,
     out_dir: str | os.PathLike,
     test_per_object: int = 1,
     kind: str = "ycb_slide",

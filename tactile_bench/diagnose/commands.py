@@ -193,7 +193,7 @@ def _generate(ns: argparse.Namespace, chars: tuple[str, ...]) -> Any:
     from tqdm.auto import tqdm
 
     from tactile_bench.data.braille import draw_disjoint, render_braille_set
-    from tactile_bench.data.pairs import to_uint8
+    from tactile_bench.data.corpus import to_uint8
     from tactile_bench.geometry.braille import BrailleSpec
     from tactile_bench.geometry.contacts import classifier_protocol, finetune_test_protocol
     from tactile_bench.sensor.background import sim_background

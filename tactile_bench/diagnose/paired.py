@@ -46,9 +46,9 @@ import numpy as np
 import torch
 from PIL import Image, UnidentifiedImageError
 
+from tactile_bench.data.corpus import CorpusPairs
 from tactile_bench.data.images import area_resized
 from tactile_bench.data.paired import Pairs
-from tactile_bench.data.pairs import PairSet
 from tactile_bench.data.pixels import to_uint8
 from tactile_bench.data.tactile_diffusion import braille_root
 from tactile_bench.errors import TactileBenchError
@@ -397,7 +397,7 @@ def _load_tactile_diffusion(base: Path, size: int) -> PairedData:
     )
 
 
-def _first_background(pairs: PairSet, base: Path) -> torch.Tensor:
+def _first_background(pairs: CorpusPairs, base: Path) -> torch.Tensor:
     """The first pair's no-contact frame, which ``PairedData`` (one frame for all) keeps.
 
     Warns when the pairs were taken on more than one distinct frame: the others' foregrounds

@@ -204,7 +204,7 @@ def quant_tables(quality: float) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 @lru_cache(maxsize=1)
-def _dct_matrix() -> torch.Tensor:
+def dct_matrix() -> torch.Tensor:
     k = torch.arange(8, dtype=torch.float32)
     d = torch.cos(math.pi * (2 * k[None, :] + 1) * k[:, None] / 16) * math.sqrt(2 / 8)
     d[0] /= math.sqrt(2)
@@ -282,7 +282,7 @@ class _PlaneCodec:
 
 def _block_dct(n: int) -> torch.Tensor:
     """(n, n) block-diagonal orthonormal DCT-II of 8-sample blocks."""
-    return torch.block_diag(*[_dct_matrix()] * (n // 8))
+    return torch.block_diag(*[dct_matrix()] * (n // 8))
 
 
 @lru_cache(maxsize=16)

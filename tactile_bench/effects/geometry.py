@@ -141,7 +141,7 @@ class ElasticSpread(Effect):
     def _spread(x: torch.Tensor, p: Mapping[str, ParamValue], ctx: EffectContext) -> torch.Tensor:
         pen = x.clamp(min=0.0)
         peak = pen.detach().amax(dim=(2, 3), keepdim=True)
-        # held core as 0/1 floats: masks by multiply-add are ~10x faster than torch.where
+        # held core as 0/1 floats: masks by multiply-add are faster than torch.where
         # on CPU and exact here (x * 1 + y * 0 == x)
         core = (pen.detach() > scalar(p["contact_scale"]) * peak).float()
         held = pen * core

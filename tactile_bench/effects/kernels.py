@@ -34,10 +34,11 @@ def gaussian_blur(
     upsampled back: same result to ~1% for a smooth field. The whole 1-D blur of each axis
     (padding, taps, upsampling) is one matrix, so the blur is two GEMMs, ``Ly @ x @ Lx^T``
     (after the 2x area pooling, for a wide one): at these sizes (<= a few hundred px)
-    ~15x faster on CPU than a 1-channel ``conv2d``, and differentiable in sigma through the
-    matrices. Narrow blurs (taps within ``SMALL_BLUR_RADIUS`` px) of fixed sigma outside
-    autograd are shifted adds of the same taps instead (``_blur_by_taps``): the dense GEMMs
-    spend H + W multiply-adds a pixel whatever the radius.
+    faster on CPU than a 1-channel ``conv2d`` (docs/results/code_figures.md), and
+    differentiable in sigma through the matrices. Narrow blurs (taps within
+    ``SMALL_BLUR_RADIUS`` px) of fixed sigma outside autograd are shifted adds of the same
+    taps instead (``_blur_by_taps``): the dense GEMMs spend H + W multiply-adds a pixel
+    whatever the radius.
     """
     h, w = x.shape[-2], x.shape[-1]
     taps = _small_blur_taps(h, w, sigma_x_px, sigma_y_px, max_radius, x)
@@ -66,13 +67,15 @@ def _small_blur_taps(
         return None
     if any(isinstance(s, torch.Tensor) and s.requires_grad for s in (sigma_x_px, sigma_y_px)):
         return None
-    return _cached_small_taps(h, w, scalar(sigma_x_px), scalar(sigma_y_px), max_radius)
+    return small_blur_taps(h, w, scalar(sigma_x_px), scalar(sigma_y_px), max_radius)
 
 
 @lru_cache(maxsize=64)
-def _cached_small_taps(
+def small_blur_taps(
     h: int, w: int, sx: float, sy: float, max_radius: int
 ) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """The (x, y) taps of a narrow blur that ``gaussian_blur`` runs as shifted adds, or None
+    when the blur is wide and takes the pooled matrix path instead (cached by its sizes)."""
     if max(sx, sy) > 4 or min(h, w) < 2:  # wide: the pooled GEMM path
         return None
     rx = min(max_radius, max(1, math.ceil(3.0 * sx)), w - 1)
@@ -106,8 +109,9 @@ def _blur_by_taps(x: torch.Tensor, kx: tuple[float, ...], ky: tuple[float, ...])
 def area_pool(x: torch.Tensor, factor: int) -> torch.Tensor:
     """``F.avg_pool2d(x, factor)`` of (N, C, H, W), H and W multiples of ``factor``.
 
-    The same sums in the same order (so the same floats), as strided adds: ~2.5x faster on
-    CPU than torch's pooling kernel at these sizes.
+    The same sums in the same order (so the same floats), as strided adds: faster on CPU
+    than torch's pooling kernel on the one-channel depth maps it pools most, as fast on
+    images (docs/results/code_figures.md).
     """
     n, c, h, w = x.shape
     if h % factor or w % factor or x.requires_grad:
@@ -171,7 +175,7 @@ def _blur_factors(
 
 def _conv_matrix(n: int, k: torch.Tensor) -> torch.Tensor:
     """(n, n) matrix of the reflect-padded correlation with taps ``k``: the conv of an identity."""
-    return _conv1d_slices(torch.eye(n)[None, None], k, -1)[0, 0].T
+    return conv1d_slices(torch.eye(n)[None, None], k, -1)[0, 0].T
 
 
 @lru_cache(maxsize=16)
@@ -199,7 +203,7 @@ def resize_matrix(out: int, n: int, mode: str) -> torch.Tensor:
     return F.interpolate(eye, size=(out, n), mode="bilinear", align_corners=False)[0, 0]
 
 
-def _conv1d_slices(x: torch.Tensor, k: torch.Tensor, dim: int) -> torch.Tensor:
+def conv1d_slices(x: torch.Tensor, k: torch.Tensor, dim: int) -> torch.Tensor:
     """Correlate every (N, C) plane along ``dim`` with taps ``k``, reflect padding.
 
     The reference definition of one blur axis; ``_conv_matrix`` runs it once on an identity.
@@ -225,18 +229,6 @@ def pixel_grid(
     u = (torch.arange(w, dtype=torch.float32, device=device) + 0.5) / w * 2 - 1
     vv, uu = torch.meshgrid(v, u, indexing="ij")
     return uu, vv
-
-
-def shift_mm(
-    x: torch.Tensor, dx_mm: torch.Tensor, dy_mm: torch.Tensor, ctx: EffectContext
-) -> torch.Tensor:
-    """Sample x at (p + d): content moves by -d. dx, dy broadcast to (N,), mm, image axes."""
-    n, _, h, w = x.shape
-    uu, vv = pixel_grid(h, w, x.device)
-    du = (2.0 * dx_mm / ctx.width_mm).reshape(-1, 1, 1)
-    dv = (2.0 * dy_mm / ctx.height_mm).reshape(-1, 1, 1)
-    grid = torch.stack([(uu + du).expand(n, h, w), (vv + dv).expand(n, h, w)], dim=-1)
-    return F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
 
 def surface_gradient(height: torch.Tensor, ctx: EffectContext) -> tuple[torch.Tensor, torch.Tensor]:

@@ -1,4 +1,5 @@
-"""Images checked from their header (size, mode, pixel count) before any pixel is decoded.
+"""Images checked from their header (size, mode, pixel count) before any pixel is decoded,
+then decoded whole, so that a truncated file fails when it is read, not inside a fit.
 
 A 30000 x 30000 PNG of a few megabytes decodes to gigabytes; Pillow only refuses beyond
 ~179 megapixels, and with its own exception. A tactile frame is small (a DIGIT's is
@@ -19,6 +20,8 @@ from tactile_bench.errors import TactileBenchError
 MAX_PIXELS = 4096 * 4096
 #: the smallest side of a sensor frame the models can use (recipes' image_size >= 16)
 MIN_SIDE = 16
+#: colour modes that hold a 3-channel RGB frame (a palette PNG expands to RGB)
+RGB_MODES = ("RGB", "P")
 
 
 def open_header(path: str | os.PathLike[str], max_pixels: int = MAX_PIXELS) -> Image.Image:
@@ -53,3 +56,25 @@ def open_header(path: str | os.PathLike[str], max_pixels: int = MAX_PIXELS) -> I
             f"{max_pixels} pixels: refused before decoding"
         )
     return im
+
+
+def open_image(path: str | os.PathLike[str]) -> Image.Image:
+    """The fully decoded image, or a one-line error saying what is wrong with the file."""
+    path = Path(path)
+    try:
+        with open_header(path) as im:  # size and pixel count from the header, then decode
+            im.load()  # decode now: a truncated file fails here
+            return im.copy()
+    except TactileBenchError:
+        raise
+    except FileNotFoundError:
+        raise TactileBenchError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise TactileBenchError(f"{path}: is a folder, not an image") from None
+    except Image.DecompressionBombError as exc:
+        raise TactileBenchError(f"{path}: image too large to be a sensor frame ({exc})") from None
+    except Exception as exc:  # PIL raises OSError, SyntaxError, ValueError ... on bad bytes
+        reason = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+        raise TactileBenchError(
+            f"{path}: not a readable image (corrupt or truncated? {reason})"
+        ) from None

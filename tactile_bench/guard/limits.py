@@ -7,6 +7,7 @@ allocator fails (or the kernel kills the process) and leaving a half-built folde
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 from pathlib import Path
@@ -86,15 +87,41 @@ def check_memory(key: str, what: str, estimate: float) -> None:
         )
 
 
-def check_disk(key: str, what: str, estimate: float, target: Path) -> None:
-    """Refuse ``key`` when ``what`` would write more than the free space where ``target`` goes."""
+def free_space(target: Path) -> tuple[Path, int] | None:
+    """The nearest existing folder of ``target`` and the bytes free on its disk (None when
+    the disk cannot be asked)."""
     folder = Path(target).absolute()
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     try:
-        free = shutil.disk_usage(folder).free
+        return folder, shutil.disk_usage(folder).free
     except OSError:
+        return None
+
+
+#: the errors a write gets from a full disk: no space left, or the user's quota spent
+DISK_FULL = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+def disk_full_error(exc: OSError, target: Path) -> TactileBenchError | None:
+    """A full disk as one line: the file being written (``exc.filename``, else ``target``)
+    and the space left where it goes; None for any other ``OSError``. A write to an open
+    file fails without a file name, so the caller says what it was writing."""
+    if exc.errno not in DISK_FULL:
+        return None
+    path = Path(exc.filename) if exc.filename else Path(target)
+    doing = "while writing it" if exc.filename else "while writing there"
+    space = free_space(path)
+    left = f"; {format_bytes(space[1])} free on the disk of {space[0]}" if space else ""
+    return TactileBenchError(f"{path}: {os.strerror(exc.errno)} {doing}{left}")
+
+
+def check_disk(key: str, what: str, estimate: float, target: Path) -> None:
+    """Refuse ``key`` when ``what`` would write more than the free space where ``target`` goes."""
+    space = free_space(target)
+    if space is None:
         return
+    folder, free = space
     if estimate > free:
         raise TactileBenchError(
             f"{key}: {what} would write about {format_bytes(estimate)}, more than the "

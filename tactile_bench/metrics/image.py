@@ -18,7 +18,7 @@ def _as_float255(images: torch.Tensor) -> torch.Tensor:
 
 
 #: images per SSIM call: torchmetrics stacks five padded float copies of its batch, so a
-#: whole 837-image test set at 64 x 64 took 2.9 GB at once (measured); 64 at a time ~0.2 GB
+#: whole test set at once takes gigabytes; 64 at a time stays small (docs/results/code_figures.md)
 SSIM_CHUNK = 64
 
 

@@ -28,8 +28,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.limits import check_seed
-from tactile_bench.guard.recipes import check_name, check_stage, check_trainer
 from tactile_bench.guard.safe_yaml import load_yaml_file, load_yaml_text
+from tactile_bench.pipeline.recipe_rules import check_name, check_stage, check_trainer
 from tactile_bench.pipeline.stages import STAGES, StageKind
 from tactile_bench.pipeline.stages.base import config_keys
 
@@ -209,7 +209,7 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
             kind.check(config, path.parent)
         except TactileBenchError as exc:
             raise TactileBenchError(f"{where}.config.{exc}") from None
-        check_stage(kind.name, config, f"{where}.config")  # guard.recipes: bounds, duplicates
+        check_stage(kind.name, config, f"{where}.config")  # recipe_rules: bounds, duplicates
         recipe.stages.append(Stage(stage_doc.name, kind, config, inputs))
         seen.add(stage_doc.name)
     return recipe

@@ -38,6 +38,7 @@ import torch
 from tactile_bench.allocator import keep_freed_memory
 from tactile_bench.console import configure_logging
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.limits import disk_full_error
 from tactile_bench.hardware import use_tensor_cores
 from tactile_bench.pipeline.memory import peak_rss_mib
 from tactile_bench.pipeline.recipe import Stage
@@ -61,6 +62,11 @@ def execute(stage: Stage, ctx: StageContext) -> Ran:
         if not message.startswith(f"stage {stage.name}"):
             message = f"stage {stage.name}: {message}"
         raise TactileBenchError(message) from None
+    except OSError as exc:  # a full disk: the stage, the file and the space left
+        full = disk_full_error(exc, ctx.directory)
+        if full is None:
+            raise
+        raise TactileBenchError(f"stage {stage.name}: {full}") from None
     except KeyboardInterrupt:
         log.warning(
             "stage %s interrupted: finished stages and its training checkpoint (if any) are "

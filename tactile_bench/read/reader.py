@@ -22,9 +22,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from tactile_bench.classify.store import load_classifier
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
-from tactile_bench.pipeline.stages.classify import load_classifier
 
 AGGREGATION = "mean log-probability of the frames within +-pitch/4 of the cell centre"
 FIT_HINT = "run `python -m tactile_bench fit recipes/quick.yaml` (or recipes/table1.yaml) first"

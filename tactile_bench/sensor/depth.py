@@ -67,13 +67,14 @@ def _thetas(bank: HeightFieldBank, poses: Poses, gel: GelSpec) -> torch.Tensor:
     return theta / bank.half_extent_mm
 
 
-def _affine_grid(theta: torch.Tensor, side: int) -> torch.Tensor:
-    """``F.affine_grid(theta, [k, 1, side, side], align_corners=False)``, ~3x faster.
+def affine_grid(theta: torch.Tensor, side: int) -> torch.Tensor:
+    """``F.affine_grid(theta, [k, 1, side, side], align_corners=False)``, computed faster
+    (docs/results/code_figures.md).
 
     The map is affine, so the grid is a row term plus a column term: broadcast adds instead
     of a batched matmul against the homogeneous base grid (same values to ~1 ulp). One add
-    per coordinate, each along a whole row, into the interleaved grid: ~1.7x faster than
-    one add over (x, y) pairs, whose innermost run of 2 values defeats vectorisation.
+    per coordinate, each along a whole row, into the interleaved grid: faster than one add
+    over (x, y) pairs, whose innermost run of 2 values defeats vectorisation.
     """
     base = (torch.arange(side, dtype=theta.dtype) * 2 + 1) / side - 1
     t = theta.transpose(1, 2)[:, None, None]  # (k, 1, 1, 3, 2): columns x, y, offset
@@ -109,12 +110,12 @@ def render_height(
         first = torch.full((len(unique),), n, dtype=torch.long).scatter_reduce_(
             0, inverse, torch.arange(n), "amin"
         )  # one contact of each placement
-        h = _sample_maps(bank, poses.index(first), gel, chunk, side)
+        h = sample_maps(bank, poses.index(first), gel, chunk, side)
         return h[inverse].sub_(offset.view(n, 1, 1, 1))
-    return _sample_maps(bank, poses, gel, chunk, side).sub_(offset.view(n, 1, 1, 1))
+    return sample_maps(bank, poses, gel, chunk, side).sub_(offset.view(n, 1, 1, 1))
 
 
-def _sample_maps(
+def sample_maps(
     bank: HeightFieldBank, poses: Poses, gel: GelSpec, chunk: int, side: int
 ) -> torch.Tensor:
     """The bank's map of each contact's label, moved and turned to its placement."""
@@ -125,7 +126,7 @@ def _sample_maps(
     for label in torch.unique(labels).tolist():
         for idx in torch.nonzero(labels == label).flatten().split(chunk):
             k = len(idx)
-            grid = _affine_grid(thetas[idx], side)
+            grid = affine_grid(thetas[idx], side)
             h = F.grid_sample(
                 maps[label : label + 1],
                 grid.view(1, k * side, side, 2),

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tactile_bench.data.images import RGB_MODES, open_image
 from tactile_bench.effects._optics_fit import N_HARM, N_MAG, RESPONSE_WEIGHTS
 from tactile_bench.effects.optics import fitted_response
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.images import RGB_MODES, open_image
 from tactile_bench.io import load_npz
 from tactile_bench.sensor.background import digit_background
 

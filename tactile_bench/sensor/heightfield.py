@@ -112,13 +112,14 @@ def raycast_heights(
 
     ``meshes`` are (vertices, faces) pairs. With Embree installed (``embreex``) the rays go
     through its watertight ("robust") intersector: the grid puts rays exactly through mesh
-    vertices and edges, where the default one lets ~0.4% of them slip through. Otherwise one
+    vertices and edges, where the default one lets some of them slip through. Otherwise one
     pybullet DIRECT client (disconnected afterwards) holds one mesh at a time as a static
     concave shape; the same ray lists are reused for every mesh (building them costs as
     much as casting). Rays go in chunks of ``pybullet.MAX_RAY_INTERSECTION_BATCH_SIZE - 1``
-    on ``num_threads`` threads (default: all cores; Bullet's own choice, 0, was 4x slower
-    here). Both give the same heights to ~1e-6 mm; Embree ~10x faster. Rays that miss get
-    ``miss``. ``backend``: ``"auto"`` (Embree when installed), ``"embree"`` or ``"pybullet"``.
+    on ``num_threads`` threads (default: all cores, faster than Bullet's own choice, 0).
+    Both give the same heights to ~1e-6 mm; Embree is the faster
+    (docs/results/code_figures.md). Rays that miss get ``miss``. ``backend``: ``"auto"``
+    (Embree when installed), ``"embree"`` or ``"pybullet"``.
     """
     if backend not in ("auto", "embree", "pybullet"):
         raise TactileBenchError(f"raycast_heights: unknown backend {backend!r}")
@@ -217,7 +218,7 @@ def build_bank(
     near the block edges falls off to ``far_mm`` instead of clamping to the top face.
     The grid step is shrunk from ``resolution_mm`` until half the dot spacing is a whole
     number of steps, so every dot apex falls on a grid node and the field's maximum is the
-    exact dome height (0.1 mm -> 0.098 mm: 225 x 225 rays, ~0.1 s a character).
+    exact dome height (a 0.1 mm step becomes 0.098 mm: 225 x 225 rays a character).
     A cache whose characters, spec or grid differ is rebuilt, not trusted.
     """
     spec = spec or BrailleSpec()

@@ -14,14 +14,13 @@ where the object penetrates the gel. Rays start ``reach_mm`` behind the gel plan
 penetration deeper than that (never physical: the gel is 4.6 mm thick) reads as ``reach_mm``;
 pixels whose ray meets nothing within ``reach_mm`` in front of the gel read ``-reach_mm``.
 
-Backends (measured on this 2-core machine, 64 x 64 model images oversampled to 128 x 128,
-a 330k-face mesh; see the module's ``benchmark``):
-- ``embree``: Intel Embree through ``embreex`` (PyPI wheel), a BVH in C++: ~250-400 frames/s.
+Backends:
+- ``embree``: Intel Embree through ``embreex`` (PyPI wheel), a BVH in C++: the fast one.
 - ``pybullet``: ``rayTestBatch`` on a static concave mesh; always available (pybullet is a
-  dependency) but the ray lists cross into Python: ~10 frames/s. Used only without embreex.
-pybullet's TinyRenderer depth camera was the third option (575 img/s at 64 x 64 on a 6k-face
-mesh) but it is a perspective camera, its cost grows with the face count of the whole mesh
-and its depth buffer must be linearised; rays are exact and orthographic.
+  dependency) but the ray lists cross into Python, so it is far slower. Used only without
+  embreex.
+Rays are exact and orthographic, as the DIGIT's depth here is; a rasterising depth camera
+(pybullet's TinyRenderer) is perspective and its depth buffer must be linearised.
 ``embreex``'s ``run`` holds the GIL (two Python threads cast no faster than one), so the
 corpus builder (``data.ycb_slide``) puts both cores to work with processes.
 """
@@ -224,7 +223,7 @@ class MeshDepthRenderer:
             raise TactileBenchError("mesh_depth: renderer already closed")
         if self.backend == "embree":
             return self._render_embree(p, xs, ys)
-        return self._render_rays(p, xs, ys)
+        return self.render_rays(p, xs, ys)
 
     def peak_height(self, poses: np.ndarray | torch.Tensor, step: int = 4) -> np.ndarray:
         """(N,) highest signed height, mm, seen by every ``step``-th pixel in each direction.
@@ -241,7 +240,7 @@ class MeshDepthRenderer:
             h = self._render_height(poses, self._xs[keep], self._ys[keep])
         return h.flatten(1).amax(1).numpy().astype(np.float64)
 
-    def _render_rays(
+    def render_rays(
         self, p: np.ndarray, xs: np.ndarray | None = None, ys: np.ndarray | None = None
     ) -> torch.Tensor:
         """Any backend: float64 ray set-up, then the backend's caster (the reference path)."""
@@ -270,8 +269,8 @@ class MeshDepthRenderer:
         precision; the frame's origin is moved to the mesh centre first, in float64).
 
         A pixel's ray starts at x R[:, 0] + y R[:, 1] + (t - reach R[:, 2]) and runs along
-        R[:, 2]: two outer products per coordinate instead of a stacked 3 x 3 matmul (~2x
-        less set-up). Same rays as ``_render_rays`` to float32 rounding (~1e-6 mm).
+        R[:, 2]: two outer products per coordinate instead of a stacked 3 x 3 matmul (less
+        set-up). Same rays as ``render_rays`` to float32 rounding (~1e-6 mm).
         """
         scene, centre = self._cast.scene, self._cast.centre  # type: ignore[union-attr]
         xs64 = self._xs if xs64 is None else xs64
@@ -313,32 +312,3 @@ def _as_images(heights: np.ndarray) -> torch.Tensor:
     side = int(round(n_pix**0.5))
     shape = (n, 1, side, side) if side * side == n_pix else (n, 1, 1, n_pix)
     return torch.from_numpy(heights).reshape(shape)
-
-
-def render_mesh_height(
-    mesh: object,
-    poses: np.ndarray | torch.Tensor,
-    gel: GelSpec | None = None,
-    backend: str = "auto",
-    reach_mm: float = 10.0,
-) -> torch.Tensor:
-    """One-shot ``MeshDepthRenderer(mesh).render_height(poses)``: signed height, mm."""
-    renderer = MeshDepthRenderer.from_trimesh(mesh, gel, backend=backend, reach_mm=reach_mm)
-    try:
-        return renderer.render_height(poses)
-    finally:
-        renderer.close()
-
-
-def benchmark(
-    mesh: object, poses: np.ndarray, gel: GelSpec | None = None, backend: str = "auto"
-) -> float:
-    """Frames per second of ``render_height`` (after the scene is built)."""
-    import time
-
-    renderer = MeshDepthRenderer.from_trimesh(mesh, gel, backend=backend)
-    start = time.perf_counter()
-    renderer.render_height(poses)
-    rate = len(poses) / (time.perf_counter() - start)
-    renderer.close()
-    return rate

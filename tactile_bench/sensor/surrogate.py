@@ -28,7 +28,7 @@ effect carries. Its parameters live only here and in ``profiles/``: models never
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -320,22 +320,3 @@ class SurrogateDigit:
         if not parts:
             return torch.zeros(0, 3, gel.size, gel.size)
         return torch.cat(parts)
-
-    def render_with_background(
-        self,
-        bank: HeightFieldBank,
-        poses: Poses,
-        gel: GelSpec | None = None,
-        generator: torch.Generator | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(render(...), background(gel))``: images and this unit's no-contact frame."""
-        gel = gel or self.gel()
-        return self.render(bank, poses, gel, generator), self.background(gel)
-
-
-def load_surrogate(
-    name_or_path: str | Path = "digit", without: Iterable[str] = ()
-) -> SurrogateDigit:
-    """``SurrogateDigit.from_profile(name_or_path).without(*without)``."""
-    s = SurrogateDigit.from_profile(name_or_path)
-    return s.without(*without) if without else s

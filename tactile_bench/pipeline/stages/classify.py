@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from pydantic import Field
 
-from tactile_bench.classify.module import BrailleClassifier
+from tactile_bench.classify.store import load_classifier, save_classifier
 from tactile_bench.classify.train import (
     ClassifierConfig,
     classifier_precision,
@@ -34,7 +34,7 @@ from tactile_bench.data.datamodule import stratified_split, stratified_subset
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.hardware import Precision, compute_device
-from tactile_bench.io import atomic_torch_save, atomic_write_json, load_npz
+from tactile_bench.io import atomic_write_json, load_npz
 from tactile_bench.pipeline.loggers import make_loggers
 from tactile_bench.pipeline.stages.base import (
     StageConfig,
@@ -273,21 +273,6 @@ def _init_model_path(init: StageResult, seed: int) -> Path:
             f"(it trained seeds {sorted(k[10:] for k in init.outputs if k.startswith(key[:10]))})"
         )
     return init.path(key)
-
-
-def save_classifier(model: Any, path: Path) -> Path:
-    """The final weights (after BatchNorm re-estimation) with the hyperparameters to rebuild."""
-    return atomic_torch_save(
-        {"hparams": dict(model.hparams), "state_dict": model.state_dict()}, path
-    )
-
-
-def load_classifier(path: Path) -> BrailleClassifier:
-    """Rebuild a classifier written by ``save_classifier``."""
-    payload = torch.load(path, map_location="cpu", weights_only=True)
-    model = BrailleClassifier(**payload["hparams"])
-    model.load_state_dict(payload["state_dict"])
-    return model.eval()
 
 
 def _second_unit(ctx: StageContext) -> tuple[str, torch.Tensor, torch.Tensor] | None:

@@ -15,12 +15,12 @@ import torch
 from matplotlib.figure import Figure
 from pydantic import Field
 
+from tactile_bench.classify.store import load_classifier
 from tactile_bench.classify.train import evaluate
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.io import atomic_write_json, atomic_write_text
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
-from tactile_bench.pipeline.stages.classify import load_classifier
 from tactile_bench.report.figures import save_figure
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.heightfield import build_bank

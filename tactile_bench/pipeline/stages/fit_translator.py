@@ -17,8 +17,8 @@ import torch
 from pydantic import Field
 
 from tactile_bench.data.braille import BrailleSet
+from tactile_bench.data.corpus import load_pairs
 from tactile_bench.data.datamodule import stratified_subset
-from tactile_bench.data.pairs import load_pairs
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json
 from tactile_bench.metrics.image import ssim_mse

@@ -4,7 +4,8 @@
 YCB-Slide release (``real/<object>/dataset_<k>``, depth rendered here, the released
 ``bgs/bg_<i>.jpg`` as background where present, else each log's first frame), or
 Tactile-Diffusion's processed copy (``dataset/<object>/dataset_<k>/{frames,frames_depth}``,
-its own split and backgrounds; ``data.ycb_processed``).
+its own split and backgrounds; ``data.ycb_processed``; a log without its split file gets
+one drawn from the stage's seed, written under ``splits/`` in the stage folder).
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from tactile_bench.data.pairs import load_pairs, read_manifest
+from tactile_bench.data.corpus import load_pairs, read_manifest
 from tactile_bench.data.ycb_processed import (
+    SPLIT_FILE,
     load_ycb_processed,
     processed_root,
     released_background,
@@ -97,6 +99,8 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             gel=GelSpec(size=config.image_size),
             stride=config.stride,
             skipped=skipped,
+            seed=ctx.seed,
+            write_splits_to=ctx.directory / "splits",
         )
         source_info["layout"] = "tactile-diffusion processed copy"
         manifest = write_corpus(pairs, ctx.directory, test_mask=pairs.meta["test"] == 1)
@@ -135,6 +139,10 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     }
     for shard in sorted((ctx.directory / "shards").glob("*.npz")):
         outputs[f"shard_{shard.stem}"] = f"shards/{shard.name}"
+    for split in sorted((ctx.directory / "splits").glob(f"*/*/{SPLIT_FILE}")):
+        outputs[f"split_{split.parent.parent.name}_{split.parent.name}"] = str(
+            split.relative_to(ctx.directory)
+        )
     counts = {k: manifest[k] for k in ("n_train", "n_test", "frames_dropped") if k in manifest}
     counts |= {"source": source_info} if source_info else {}
     if skipped is not None:  # skip_bad: say what was left out, in the log and in a file

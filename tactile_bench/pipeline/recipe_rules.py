@@ -9,14 +9,19 @@ one ``lightning.Trainer`` takes (found now, not after the earlier stages have ru
 from __future__ import annotations
 
 import inspect
+import logging
 import math
 from collections.abc import Callable
 from functools import lru_cache
 from typing import Any
 
+import lightning as L
+
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.geometry.contacts import classifier_protocol, finetune_test_protocol
 from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL, MAX_COUNT
 from tactile_bench.guard.limits import check_int, check_memory, check_seed, check_unique
+from tactile_bench.training import EVERY_KEY
 
 #: config keys whose values are counts, by suffix or prefix of the key
 _COUNT_SUFFIXES = ("_pairs", "_steps", "_epochs", "_images", "batch_size", "samples")
@@ -33,10 +38,6 @@ _POSITIVE_TRAINER_KEYS = ("max_epochs", "max_steps", "min_epochs", "min_steps")
 @lru_cache(maxsize=1)
 def trainer_keys() -> frozenset[str]:
     """The keyword arguments ``lightning.Trainer`` takes, plus our own."""
-    import lightning as L
-
-    from tactile_bench.training import EVERY_KEY
-
     params = inspect.signature(L.Trainer.__init__).parameters
     return frozenset(p for p in params if p != "self") | {EVERY_KEY}
 
@@ -51,8 +52,6 @@ def check_trainer(trainer: dict[str, Any], where: str) -> None:
             raise TactileBenchError(
                 f"{where}.trainer.{key}: not a lightning.Trainer argument{hint}"
             )
-    from tactile_bench.training import EVERY_KEY
-
     for key in (*_POSITIVE_TRAINER_KEYS, EVERY_KEY):
         if key in trainer and trainer[key] is not None:
             check_int(f"{where}.trainer.{key}", trainer[key], 1, MAX_COUNT)
@@ -70,12 +69,6 @@ _OBJECT_TRAINER_KEYS = frozenset({"logger", "callbacks", "plugins", "default_roo
 def try_trainer(trainer: dict[str, Any], where: str) -> None:
     """Build a ``lightning.Trainer`` from the settings now: a wrong precision, strategy,
     accelerator or device count fails here, not after the stages before its first fit."""
-    import logging
-
-    import lightning as L
-
-    from tactile_bench.training import EVERY_KEY
-
     settings = {k: v for k, v in trainer.items() if k != EVERY_KEY}
     settings |= {
         "logger": False,
@@ -124,8 +117,6 @@ def _walk(value: Any, key: str, where: str) -> None:
 
 # ----------------------------------------------------------------------------- per kind
 def _braille_data(config: Any, where: str) -> None:
-    from tactile_bench.geometry.contacts import classifier_protocol, finetune_test_protocol
-
     chars = tuple(config.chars)
     n_chars = len(chars)
     grid = len(classifier_protocol(chars))

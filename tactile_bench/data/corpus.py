@@ -1,10 +1,11 @@
-"""Paired (sim depth, real image) data from sliding logs, kept in shards on disk.
+"""A corpus of (depth, real image) pairs from many recordings, kept in shards on disk.
 
-``BrailleSet`` holds one contact protocol with a single background per sensor; sliding
-corpora differ: many trajectories, one background per recording (a real DIGIT's unit and
+``BrailleSet`` holds one contact protocol with a single background per sensor; a corpus
+differs: many trajectories or logs, one background per recording (a real DIGIT's unit and
 lighting drift between logs), per-frame metadata (press, sliding velocity, time), and a
-train/test split by trajectory. A ``PairSet`` carries the same array names as ``BrailleSet``
-(``depth``, ``sim``, ``real``, ``foreground``) so the translators' code reads either.
+train/test split by trajectory. ``CorpusPairs`` is its in-memory form, a ``data.paired.Pairs``
+like ``BrailleSet`` (``depth``, ``sim``, ``real``, ``foreground``), so the translators' code
+reads either.
 
 On disk: ``<root>/manifest.json`` lists shards ``shards/<name>.npz`` (one trajectory each,
 written atomically, content hash recorded) and ``backgrounds.npz``.
@@ -32,7 +33,7 @@ SPLITS = ("train", "test", "all")
 
 
 @dataclass
-class PairSet(Pairs):
+class CorpusPairs(Pairs):
     """N pairs: ``depth`` (N,1,S,S) mm, ``real`` (N,3,S,S) uint8, optional ``sim`` likewise.
 
     ``real_background`` (B,3,S,S) uint8 holds the no-contact frames, ``real_bg_index`` (N,)
@@ -63,12 +64,12 @@ class PairSet(Pairs):
         if bgs.dim() != 4 or tuple(bgs.shape[1:]) != (3, *size):
             raise shape_error(type(self).__name__, "real_background", "(B,3,S,S)", bgs.shape)
         if n and (self.real_bg_index.min() < 0 or self.real_bg_index.max() >= len(bgs)):
-            raise TactileBenchError("PairSet: real_bg_index outside the backgrounds")
+            raise TactileBenchError("CorpusPairs: real_bg_index outside the backgrounds")
         if not torch.isfinite(self.depth).all():
-            raise TactileBenchError("PairSet: depth has NaN or infinite values")
+            raise TactileBenchError("CorpusPairs: depth has NaN or infinite values")
         if n and float(self.depth.min()) < 0:
             raise TactileBenchError(
-                f"PairSet: negative depth ({float(self.depth.min()):.3g} mm); depth is the "
+                f"CorpusPairs: negative depth ({float(self.depth.min()):.3g} mm); depth is the "
                 "gel's penetration, >= 0"
             )
 
@@ -77,7 +78,7 @@ class PairSet(Pairs):
         if kind == "real":
             return self.real_background[self.real_bg_index]
         if self.sim_background is None:
-            raise TactileBenchError("PairSet: no sim images in this set")
+            raise TactileBenchError("CorpusPairs: no sim images in this set")
         return self.sim_background.expand(len(self), -1, -1, -1)
 
     def _background(self, kind: Literal["sim", "real"]) -> torch.Tensor:
@@ -88,10 +89,10 @@ class PairSet(Pairs):
         return {"meta": {k: v[at] for k, v in self.meta.items()}}
 
     @classmethod
-    def cat(cls, parts: Sequence[PairSet]) -> PairSet:
+    def cat(cls, parts: Sequence[CorpusPairs]) -> CorpusPairs:
         """Concatenate sets that share their backgrounds (as the shards of one corpus do)."""
         if not parts:
-            raise TactileBenchError("PairSet.cat: nothing to concatenate")
+            raise TactileBenchError("CorpusPairs.cat: nothing to concatenate")
         first = parts[0]
         has_sim = first.sim is not None
         return cls(
@@ -123,7 +124,7 @@ class PairSet(Pairs):
         path: str | os.PathLike,
         real_background: torch.Tensor,
         sim_background: torch.Tensor | None = None,
-    ) -> PairSet:
+    ) -> CorpusPairs:
         """Read a shard written by ``save_shard``; bad files are a ``TactileBenchError``."""
         path = Path(path)
         base = load_npz(path, ("depth", "real", "real_bg_index"))
@@ -173,7 +174,7 @@ def read_manifest(root: str | os.PathLike) -> dict[str, Any]:
     return manifest
 
 
-def load_pairs(root: str | os.PathLike, split: str = "train", verify: bool = False) -> PairSet:
+def load_pairs(root: str | os.PathLike, split: str = "train", verify: bool = False) -> CorpusPairs:
     """The pairs of ``split`` ("train", "test" or "all") of a corpus written by a builder.
 
     ``verify`` re-hashes every shard against the manifest (slow; the loaders already catch
@@ -198,7 +199,8 @@ def load_pairs(root: str | os.PathLike, split: str = "train", verify: bool = Fal
         path = root / str(shard["file"])
         if verify and path.is_file() and file_sha256(path) != shard.get("sha256"):
             raise TactileBenchError(f"{path}: content does not match the manifest")
-        parts.append(PairSet.load_shard(path, real_bg, sim_bg))
-    if not parts:
+        parts.append(CorpusPairs.load_shard(path, real_bg, sim_bg))
+    pairs = CorpusPairs.cat(parts) if parts else None
+    if pairs is None or not len(pairs):
         raise TactileBenchError(f"{root}: no {split!r} pairs in the manifest")
-    return PairSet.cat(parts)
+    return pairs
