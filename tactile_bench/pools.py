@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import os
 import signal
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import contextmanager, suppress
 from typing import Any
@@ -54,11 +54,10 @@ def spawned_pool(
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def cancel_pending(futures: Any) -> None:
-    """Cancel every future of ``futures`` (an iterable of futures) that has not started."""
+def cancel_pending(futures: Iterable[Future[Any]]) -> None:
+    """Cancel every future of ``futures`` that has not started."""
     for future in futures:
-        if isinstance(future, Future):
-            future.cancel()
+        future.cancel()
 
 
 def signal_workers(pool: ProcessPoolExecutor, signum: int = signal.SIGTERM) -> None:
