@@ -160,7 +160,7 @@ class GammaWhiteBalance(Effect):
             return per_sub_batch(
                 lambda x: 255.0 * (x * wb / 255.0).clamp(1e-4, 1.0) ** inv_gamma, x
             )
-        g = 1.0 / scalar(p["gamma"])
+        g = float(1.0 / as_tensor(p["gamma"]).cpu())  # float32, as the tensor path rounds it
         return per_sub_batch(
             lambda x: (x * wb).div_(255.0).clamp_(1e-4, 1.0).pow_(g).mul_(255.0), x
         )
