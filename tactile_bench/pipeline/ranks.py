@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from tactile_bench.errors import TactileBenchError
@@ -46,6 +48,29 @@ def lost_process_error(stage: str, exc: BaseException) -> LostProcess | None:
             "and the last training checkpoint are kept, rerun the same launch to resume"
         )
     return None
+
+
+@contextmanager
+def sigterm_ends_launch() -> Iterator[None]:
+    """On rank 0: a SIGTERM (what torchrun sends the others when one process of the launch
+    ends, and SLURM at a job's time limit or cancel) ends the run with one line instead of
+    killing it silently. Every write is atomic, so nothing is left half-written."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise LostProcess(
+            "the launch was stopped (SIGTERM from its launcher: another of its processes "
+            "ended, or the job was cancelled or ran out of time); finished stages and the "
+            "last training checkpoint are kept, rerun the same launch to resume"
+        )
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def lead(

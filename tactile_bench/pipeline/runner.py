@@ -29,7 +29,13 @@ from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
 from tactile_bench.pipeline.launch import LAUNCH_KEYS, Launch, gather, processes, share
 from tactile_bench.pipeline.launch import start as start_launch
 from tactile_bench.pipeline.provenance import InputHasher, run_record
-from tactile_bench.pipeline.ranks import LostProcess, follow, lead, stop_followers
+from tactile_bench.pipeline.ranks import (
+    LostProcess,
+    follow,
+    lead,
+    sigterm_ends_launch,
+    stop_followers,
+)
 from tactile_bench.pipeline.recipe import Recipe, Stage
 from tactile_bench.pipeline.run_lock import RunDirLock, check_claim
 from tactile_bench.pipeline.side_by_side import Ran, execute, run_side_by_side
@@ -200,7 +206,7 @@ def _run_launched(
         return []
     try:
         check_output_dir(recipe.run_dir, "run dir")
-        with RunDirLock(recipe.run_dir, launch.launch_id):
+        with sigterm_ends_launch(), RunDirLock(recipe.run_dir, launch.launch_id):
             share(launch, ("locked",))
             unseen = [f"rank {r}: {p}" for r, p in enumerate(gather(launch, None)) if p]
             if unseen:

@@ -61,7 +61,7 @@ def execute(stage: Stage, ctx: StageContext) -> Ran:
         message = str(exc)
         if not message.startswith(f"stage {stage.name}"):
             message = f"stage {stage.name}: {message}"
-        raise TactileBenchError(message) from None
+        raise type(exc)(message) from None  # its class too: callers tell kinds apart
     except OSError as exc:  # a full disk: the stage, the file and the space left
         full = disk_full_error(exc, ctx.directory)
         if full is None:
