@@ -186,6 +186,11 @@ def _run_launched(
     """One rank of a launch (``pipeline.launch``): rank 0 runs the recipe as
     :func:`_run_locked` does, holding a lock other machines see; the others follow it
     (``pipeline.ranks``). Returns the results on rank 0, nothing on the others."""
+    if recipe.executor != "local":
+        raise TactileBenchError(
+            f"executor: {recipe.executor} under a launch of {launch.world_size} processes: "
+            "a launch trains each fit on all of its processes; run one or the other"
+        )
     if recipe.jobs > 1:
         log.info(
             "jobs: %d -> 1 under a launch of %d processes (each fit already uses all of them)",
@@ -287,6 +292,10 @@ def _run_locked(
 
     if launch is not None:
         results = lead(launch, recipe.stages, start, finish)
+    elif recipe.executor == "ray":
+        from tactile_bench.pipeline.ray_executor import run_on_ray  # ray: an optional extra
+
+        results = run_on_ray(recipe.stages, start, finish, recipe.trainer, recipe.ray)
     elif recipe.jobs > 1:
         results = run_side_by_side(recipe.stages, recipe.jobs, start, finish)
     else:

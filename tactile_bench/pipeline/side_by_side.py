@@ -181,7 +181,7 @@ def _submit_ready(
     for stage in list(waiting):
         if len(running) >= jobs:
             return
-        if not _ready(stage, stages, results):
+        if not ready(stage, stages, results):
             continue
         waiting.remove(stage)
         handle, ctx = start(stage, results)
@@ -191,7 +191,8 @@ def _submit_ready(
             running[pool.submit(_execute_in_worker, stage, ctx)] = (stage, handle)
 
 
-def _ready(stage: Stage, stages: list[Stage], results: dict[str, Any]) -> bool:
+def ready(stage: Stage, stages: list[Stage], results: dict[str, Any]) -> bool:
+    """Whether every stage ``stage`` reads (all earlier ones for a report) has finished."""
     if stage.kind.waits_for_earlier:
         earlier = stages[: stages.index(stage)]
         return all(s.name in results for s in earlier)
