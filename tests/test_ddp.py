@@ -289,3 +289,41 @@ def test_two_nodes_sharing_one_rendezvous_run_the_recipe_once(
         n: s["directory"] for n, s in theirs.items() if n != "report"
     }
     assert ours["fit"]["processes"] == 2
+
+
+@pytest.mark.slow
+def test_srun_two_tasks_run_the_recipe_as_slurm_would_start_them(
+    launches: Path, lightning_ddp: tuple[Path, subprocess.CompletedProcess[str]]
+) -> None:
+    """Two processes with the variables ``srun --ntasks-per-node 2`` gives its tasks (what
+    docs/scaling.md's sbatch file runs): Lightning's SLURMEnvironment reads the ranks."""
+    run_dir = launches / "srun"
+    job = {
+        "SLURM_JOB_ID": "4242",
+        "SLURM_JOB_NAME": "tactile_bench",
+        "SLURM_NTASKS": "2",
+        "SLURM_NTASKS_PER_NODE": "2",
+        "SLURM_JOB_NUM_NODES": "1",
+        "SLURM_NODEID": "0",
+        "SLURM_NODELIST": "127.0.0.1",
+        "MASTER_PORT": str(_free_port()),
+    }
+    cmd = [sys.executable, *_fit_args(launches / "small.yaml", run_dir)]
+    tasks = [
+        subprocess.Popen(
+            cmd,
+            cwd=launches,
+            env={**_env(), **job, "SLURM_PROCID": str(r), "SLURM_LOCALID": str(r)},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for r in range(2)
+    ]
+    outputs = [task.communicate(timeout=TIMEOUT_S) for task in tasks]
+    assert [task.returncode for task in tasks] == [0, 0], outputs[0][1][-3000:]
+    assert "2 processes (slurm), this is rank 0" in outputs[0][1]
+    reference, proc = lightning_ddp
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert _stages(run_dir)["fit"]["directory"] == _stages(reference)["fit"]["directory"]
+    assert _rows(run_dir) == _rows(reference)

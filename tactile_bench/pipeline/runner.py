@@ -164,7 +164,11 @@ def run_recipe(
     recipe: Recipe, force: tuple[str, ...] = (), progress: bool = True
 ) -> list[StageResult]:
     """Run (or reuse) every stage; returns their results in order. With ``recipe.jobs`` > 1,
-    stages that do not read each other run side by side (``side_by_side``).
+    stages that do not read each other run side by side (``side_by_side``); with
+    ``executor: ray``, as tasks on a Ray cluster (``ray_executor``). Started by torchrun,
+    srun or with ``strategy: ddp`` on several devices, this is one rank of a launch
+    (``launch``): rank 0 runs the recipe and returns its results, the others train with it
+    and return nothing.
 
     Writes ``run.json``: seeds, versions, platform, the hash of the recipe and of every user
     file the recipe names, and each stage's config and output hashes (see ``provenance``).
@@ -294,6 +298,11 @@ def _run_locked(
         results = lead(launch, recipe.stages, start, finish)
     elif recipe.executor == "ray":
         from tactile_bench.pipeline.ray_executor import run_on_ray  # ray: an optional extra
+
+        if recipe.jobs > 1:
+            log.info(
+                "jobs: %d not used with executor: ray (the cluster's CPUs decide)", recipe.jobs
+            )
 
         results = run_on_ray(recipe.stages, start, finish, recipe.trainer, recipe.ray)
     elif recipe.jobs > 1:
