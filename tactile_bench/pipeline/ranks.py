@@ -126,7 +126,9 @@ def follow(launch: Launch) -> None:
         if message[0] == "end":
             return
         if message[0] == "stop":
-            raise TactileBenchError(f"{launch.describe()}: stopped with rank 0 ({message[1]})")
+            raise TactileBenchError(
+                f"{launch.describe()}: stopped with rank 0 (its error says why)"
+            )
         _, stage, ctx = message
         with scratch_dir(launch, stage.name) as folder:
             trainer = {**ctx.trainer, "enable_progress_bar": False}

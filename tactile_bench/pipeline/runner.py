@@ -205,7 +205,9 @@ def _run_launched(
     if not launch.leader:
         lock = share(launch)
         if lock[0] == "stop":
-            raise TactileBenchError(f"{launch.describe()}: stopped with rank 0 ({lock[1]})")
+            raise TactileBenchError(
+                f"{launch.describe()}: stopped with rank 0 (its error says why)"
+            )
         problem = check_claim(recipe.run_dir, launch.launch_id)
         seen = gather(launch, problem)
         if problem is not None:
