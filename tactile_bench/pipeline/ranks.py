@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import re
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -40,7 +41,8 @@ def lost_process_error(stage: str, exc: BaseException) -> LostProcess | None:
     out of memory, its node lost); None for any other error."""
     from torch.distributed import DistError
 
-    text = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    text = re.sub(r"^\[[^\]]*\]\s*", "", text)[:160]  # gloo's source location first
     gone = ("Connection closed by peer", "Connection reset", "Broken pipe", "Socket Timeout")
     if isinstance(exc, DistError) or any(word in text for word in gone):
         return LostProcess(
