@@ -43,6 +43,7 @@ COMMAND_MODULES: tuple[str, ...] = (
 
 
 def _cmd_fit(ns: argparse.Namespace) -> int:
+    from tactile_bench.pipeline.launch import is_leader
     from tactile_bench.pipeline.recipe import load_recipe
     from tactile_bench.pipeline.runner import run_recipe
 
@@ -52,6 +53,8 @@ def _cmd_fit(ns: argparse.Namespace) -> int:
     if ns.jobs is not None:
         recipe.jobs = ns.jobs
     results = run_recipe(recipe, force=tuple(ns.force), progress=not ns.no_progress)
+    if not is_leader():  # another rank of a launch: rank 0 prints the run
+        return 0
     print(f"\nrun directory: {recipe.run_dir}")
     for result in results:
         state = "cached" if result.cached else "ran"

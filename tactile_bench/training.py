@@ -88,9 +88,11 @@ class ResumableSampler(Sampler[int]):
         self._inner = RandomSampler(range(n), generator=generator)
         self.epoch_state: torch.Tensor | None = None  # generator state when this epoch began
         self._resume: tuple[torch.Tensor, int] | None = None
+        # (processes, rank) of the DDP fit it feeds (set by resumable_fit); see __iter__
+        self.shard: tuple[int, int] = (1, 0)
 
     def __len__(self) -> int:
-        return len(self._inner)
+        return -(-len(self._inner) // self.shard[0])
 
     def resume(self, epoch_state: torch.Tensor, batches_done: int) -> None:
         """The next iteration replays the epoch that began at ``epoch_state`` from its
@@ -111,7 +113,16 @@ class ResumableSampler(Sampler[int]):
             self._resume = None
             self.generator.set_state(state)
         self.epoch_state = self.generator.get_state()
-        yield from islice(iter(self._inner), skip, None)
+        order = iter(self._inner)
+        replicas, rank = self.shard
+        if replicas > 1:
+            # under DDP each process draws the same permutation from its same-seeded
+            # generator and takes its share as DistributedSampler does (pad by wrapping, then
+            # every replicas-th); a restored position counts this process's batches
+            full = list(order)
+            full += full[: len(self) * replicas - len(full)]
+            order = iter(full[rank::replicas])
+        yield from islice(order, skip, None)
 
 
 def rng_states() -> dict[str, Any]:
@@ -358,6 +369,30 @@ def _usable_checkpoint(path: Path, expected: str, what: str) -> int | None:
     return step
 
 
+def _launched_shard(settings: Mapping[str, Any]) -> tuple[int, int]:
+    """(processes, rank) of a fit over the processes of a launch that started before it
+    (torchrun, srun, ``tactile_bench.pipeline.launch``): the process group exists and the
+    settings ask for more than one device. (1, 0) for any other fit, a spawn strategy's too
+    (its processes start inside ``fit``, after this)."""
+    import torch.distributed as dist
+
+    if not (dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1):
+        return 1, 0
+    if settings.get("devices", 1) in (1, "1") and int(settings.get("num_nodes", 1) or 1) == 1:
+        return 1, 0
+    return dist.get_world_size(), dist.get_rank()
+
+
+def _resume_point_of_rank_zero(step: int | None, path: Path) -> tuple[int | None, Path]:
+    """Every rank of a launch resumes from where rank 0 does, from rank 0's file (the others
+    never write checkpoints, and must take as many steps)."""
+    import torch.distributed as dist
+
+    box: list[Any] = [(step, str(path))]
+    dist.broadcast_object_list(box, src=0)
+    return box[0][0], Path(box[0][1])
+
+
 @contextmanager
 def _stop_on_sigint(guard: GuardedCheckpoint) -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
@@ -473,6 +508,12 @@ def resumable_fit(
     if save:
         path.parent.mkdir(parents=True, exist_ok=True)
         step = _usable_checkpoint(path, fit_fingerprint, what)
+    shard = _launched_shard(settings)
+    if shard[0] > 1:
+        step, path = _resume_point_of_rank_zero(step, path)
+        if sampler is not None:  # Lightning's wrapper of it would lose the restored position
+            sampler.shard = shard
+            settings["use_distributed_sampler"] = False
     if step is not None:
         log.info("%s: resuming from %s (step %d)", what, path, step)
     _share_tensors_through_files(settings.get("strategy"))

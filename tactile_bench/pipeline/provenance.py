@@ -200,6 +200,7 @@ def run_record(recipe: Any, results: list[Any], hasher: InputHasher) -> dict[str
                 "cached": result.cached,
                 "resumed_from_step": result.metrics.get("resumed_from_step"),
                 "compute_precision": result.metrics.get("compute_precision"),
+                "processes": int(result.metrics.get("processes") or 1),
             }
         )
     recipe_path = Path(recipe.path)

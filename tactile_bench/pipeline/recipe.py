@@ -22,7 +22,7 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -42,6 +42,14 @@ class _StageDoc(BaseModel):
     config: dict[str, Any] = {}
 
 
+class RaySettings(BaseModel):
+    """``ray:`` of a recipe run with ``executor: ray`` (``pipeline.ray_executor``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    address: str | None = None  # the cluster (default: RAY_ADDRESS, else a local instance)
+    cpus_per_stage: int = Field(default=1, ge=1, le=1024)
+
+
 class _RecipeDoc(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str = Field(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
@@ -50,6 +58,8 @@ class _RecipeDoc(BaseModel):
     run_dir: str | None = None
     trainer: dict[str, Any] = {}
     jobs: int = Field(default=1, ge=1, le=64)
+    executor: Literal["local", "ray"] = "local"
+    ray: RaySettings = RaySettings()
     stages: list[_StageDoc] = Field(min_length=1)
 
 
@@ -75,6 +85,8 @@ class Recipe:
     stages: list[Stage] = field(default_factory=list)
     description: str = ""
     jobs: int = 1  # stages run side by side at most (pipeline.side_by_side)
+    executor: str = "local"  # local: this machine; ray: tasks on a Ray cluster
+    ray: RaySettings = field(default_factory=RaySettings)
 
     def stage(self, name: str) -> Stage:
         for stage in self.stages:
@@ -164,7 +176,18 @@ def load_recipe(path: str | Path, overrides: list[str] | None = None) -> Recipe:
     check_name(doc.name, f"{path}: name")
     check_trainer(doc.trainer, str(path))
     run_dir = Path(doc.run_dir) if doc.run_dir else Path("runs") / doc.name
-    recipe = Recipe(path, doc.name, doc.seed, run_dir, doc.trainer, [], doc.description, doc.jobs)
+    recipe = Recipe(
+        path,
+        doc.name,
+        doc.seed,
+        run_dir,
+        doc.trainer,
+        [],
+        doc.description,
+        doc.jobs,
+        doc.executor,
+        doc.ray,
+    )
     seen: set[str] = set()
     for index, stage_doc in enumerate(doc.stages):
         where = f"{path}: stages[{index}] ({stage_doc.name})"

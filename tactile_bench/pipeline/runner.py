@@ -26,8 +26,18 @@ from tactile_bench.hardware import (
     trainer_device,
 )
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
+from tactile_bench.pipeline.launch import LAUNCH_KEYS, Launch, gather, processes, share
+from tactile_bench.pipeline.launch import start as start_launch
 from tactile_bench.pipeline.provenance import InputHasher, run_record
+from tactile_bench.pipeline.ranks import (
+    LostProcess,
+    follow,
+    lead,
+    sigterm_ends_launch,
+    stop_followers,
+)
 from tactile_bench.pipeline.recipe import Recipe, Stage
+from tactile_bench.pipeline.run_lock import RunDirLock, check_claim
 from tactile_bench.pipeline.side_by_side import Ran, execute, run_side_by_side
 from tactile_bench.pipeline.stages.base import StageContext, StageResult
 from tactile_bench.training import result_settings
@@ -46,15 +56,24 @@ def stage_key(
     the stages and user files it reads (``files``: path -> sha256), seed, trainer, version.
     Trainer settings that only change display or checkpoint frequency are left out, so
     changing them does not lose a killed stage's checkpoint. A stage whose networks' precision
-    can come from ``auto`` also hashes what ``auto`` resolves to on this machine."""
+    can come from ``auto`` also hashes what ``auto`` resolves to on this machine.
+
+    How many processes train (``strategy``, ``devices``, ``num_nodes``) is hashed only for a
+    stage that trains (``StageKind.fits``), and only when more than one: their batches add up
+    to one optimizer step (the effective batch); a data or report stage is the same however
+    many processes the run has."""
+    settings = result_settings(recipe.trainer)
     doc: dict[str, Any] = {
         "kind": stage.kind.name,
         "config": stage.config.model_dump(mode="json"),
         "inputs": {slot: [r.manifest_hash for r in rs] for slot, rs in sorted(inputs.items())},
         "seed": recipe.seed,
-        "trainer": result_settings(recipe.trainer),
+        "trainer": {k: v for k, v in settings.items() if k not in LAUNCH_KEYS},
         "version": tactile_bench.__version__,
     }
+    if stage.kind.fits and processes(settings) > 1:
+        doc["processes"] = processes(settings)
+        doc["strategy"] = settings["strategy"]
     if stage.kind.precision_dependent:
         device = trainer_device(recipe.trainer.get("accelerator"))
         doc["auto_precision"] = resolve_precision("auto", device)
@@ -145,20 +164,78 @@ def run_recipe(
     recipe: Recipe, force: tuple[str, ...] = (), progress: bool = True
 ) -> list[StageResult]:
     """Run (or reuse) every stage; returns their results in order. With ``recipe.jobs`` > 1,
-    stages that do not read each other run side by side (``side_by_side``).
+    stages that do not read each other run side by side (``side_by_side``); with
+    ``executor: ray``, as tasks on a Ray cluster (``ray_executor``). Started by torchrun,
+    srun or with ``strategy: ddp`` on several devices, this is one rank of a launch
+    (``launch``): rank 0 runs the recipe and returns its results, the others train with it
+    and return nothing.
 
     Writes ``run.json``: seeds, versions, platform, the hash of the recipe and of every user
     file the recipe names, and each stage's config and output hashes (see ``provenance``).
     """
     for name in force:
         recipe.stage(name)  # unknown names fail before any work
+    launch, recipe.trainer = start_launch(recipe.trainer)
+    if launch is not None:
+        return _run_launched(recipe, launch, force, progress)
     check_output_dir(recipe.run_dir, "run dir")
     # a second run on this run dir would do the same work and overwrite the first's files
     with OutputLock(recipe.run_dir, "run dir"):
         return _run_locked(recipe, force, progress)
 
 
-def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[StageResult]:
+def _run_launched(
+    recipe: Recipe, launch: Launch, force: tuple[str, ...], progress: bool
+) -> list[StageResult]:
+    """One rank of a launch (``pipeline.launch``): rank 0 runs the recipe as
+    :func:`_run_locked` does, holding a lock other machines see; the others follow it
+    (``pipeline.ranks``). Returns the results on rank 0, nothing on the others."""
+    if recipe.executor != "local":
+        raise TactileBenchError(
+            f"executor: {recipe.executor} under a launch of {launch.world_size} processes: "
+            "a launch trains each fit on all of its processes; run one or the other"
+        )
+    if recipe.jobs > 1:
+        log.info(
+            "jobs: %d -> 1 under a launch of %d processes (each fit already uses all of them)",
+            recipe.jobs,
+            launch.world_size,
+        )
+        recipe.jobs = 1
+    if not launch.leader:
+        lock = share(launch)
+        if lock[0] == "stop":
+            raise TactileBenchError(
+                f"{launch.describe()}: stopped with rank 0 (its error says why)"
+            )
+        problem = check_claim(recipe.run_dir, launch.launch_id)
+        seen = gather(launch, problem)
+        if problem is not None:
+            raise TactileBenchError(f"{launch.describe()}: run dir {recipe.run_dir}: {problem}")
+        del seen  # a rank that does not see the run dir: rank 0 stops everyone
+        follow(launch)
+        return []
+    try:
+        check_output_dir(recipe.run_dir, "run dir")
+        with sigterm_ends_launch(), RunDirLock(recipe.run_dir, launch.launch_id):
+            share(launch, ("locked",))
+            unseen = [f"rank {r}: {p}" for r, p in enumerate(gather(launch, None)) if p]
+            if unseen:
+                raise TactileBenchError(
+                    f"run dir {recipe.run_dir}: not on storage every rank shares ({unseen[0]}); "
+                    "put it where all nodes see the same files"
+                )
+            return _run_locked(recipe, force, progress, launch)
+    except LostProcess:
+        raise  # no one to tell, and a follower may be inside a collective
+    except BaseException as exc:
+        stop_followers(launch, str(exc) or type(exc).__name__)
+        raise
+
+
+def _run_locked(
+    recipe: Recipe, force: tuple[str, ...], progress: bool, launch: Launch | None = None
+) -> list[StageResult]:
     recipe.run_dir.mkdir(parents=True, exist_ok=True)
     hasher = InputHasher(recipe.run_dir, recipe.path.parent)
 
@@ -193,7 +270,7 @@ def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[
         ctx = StageContext(
             stage.name,
             directory,
-            stage.config,
+            _one_seed_at_a_time(stage) if launch is not None else stage.config,
             inputs,
             recipe.seed,
             trainer,
@@ -206,6 +283,9 @@ def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[
 
     def finish(stage: Stage, directory: Path, ran: Ran) -> StageResult:
         outputs, metrics, wall, peak = ran
+        trained_on = processes(recipe.trainer)
+        if stage.kind.fits and trained_on > 1:  # the report says the effective batch grew
+            metrics = {**metrics, "processes": trained_on}
         result = _finish(stage, directory, outputs, metrics, wall, peak)
         log.info(
             "stage %s: done in %.1f s (peak RSS of its process so far %.0f MiB)",
@@ -216,7 +296,18 @@ def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[
         _publish(result, stage.kind.publish, recipe.run_dir)
         return result
 
-    if recipe.jobs > 1:
+    if launch is not None:
+        results = lead(launch, recipe.stages, start, finish)
+    elif recipe.executor == "ray":
+        from tactile_bench.pipeline.ray_executor import run_on_ray  # ray: an optional extra
+
+        if recipe.jobs > 1:
+            log.info(
+                "jobs: %d not used with executor: ray (the cluster's CPUs decide)", recipe.jobs
+            )
+
+        results = run_on_ray(recipe.stages, start, finish, recipe.trainer, recipe.ray)
+    elif recipe.jobs > 1:
         results = run_side_by_side(recipe.stages, recipe.jobs, start, finish)
     else:
         results = {}
@@ -229,3 +320,18 @@ def _run_locked(recipe: Recipe, force: tuple[str, ...], progress: bool) -> list[
         recipe.run_dir / "run.json", run_record(recipe, list(results.values()), hasher)
     )
     return list(results.values())
+
+
+def _one_seed_at_a_time(stage: Stage) -> Any:
+    """A stage's config with ``parallel_seeds`` 1 under a launch (said in the log): its seeds'
+    worker processes would each join the launch's fits. The key keeps the recipe's value,
+    which does not change a seed's result."""
+    config = stage.config
+    if getattr(config, "parallel_seeds", 1) > 1:
+        log.info(
+            "stage %s: parallel_seeds %d -> 1 under a launch of several processes",
+            stage.name,
+            config.parallel_seeds,
+        )
+        config = config.model_copy(update={"parallel_seeds": 1})
+    return config

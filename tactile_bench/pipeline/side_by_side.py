@@ -61,7 +61,7 @@ def execute(stage: Stage, ctx: StageContext) -> Ran:
         message = str(exc)
         if not message.startswith(f"stage {stage.name}"):
             message = f"stage {stage.name}: {message}"
-        raise TactileBenchError(message) from None
+        raise type(exc)(message) from None  # its class too: callers tell kinds apart
     except OSError as exc:  # a full disk: the stage, the file and the space left
         full = disk_full_error(exc, ctx.directory)
         if full is None:
@@ -181,7 +181,7 @@ def _submit_ready(
     for stage in list(waiting):
         if len(running) >= jobs:
             return
-        if not _ready(stage, stages, results):
+        if not ready(stage, stages, results):
             continue
         waiting.remove(stage)
         handle, ctx = start(stage, results)
@@ -191,7 +191,8 @@ def _submit_ready(
             running[pool.submit(_execute_in_worker, stage, ctx)] = (stage, handle)
 
 
-def _ready(stage: Stage, stages: list[Stage], results: dict[str, Any]) -> bool:
+def ready(stage: Stage, stages: list[Stage], results: dict[str, Any]) -> bool:
+    """Whether every stage ``stage`` reads (all earlier ones for a report) has finished."""
     if stage.kind.waits_for_earlier:
         earlier = stages[: stages.index(stage)]
         return all(s.name in results for s in earlier)

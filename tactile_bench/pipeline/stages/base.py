@@ -129,6 +129,10 @@ class StageKind:
     an upstream stage's outputs change), and so do data stages, cached across machines.
     ``waits_for_earlier``: it reads every stage listed before it (``ctx.previous``), so
     with ``jobs`` > 1 it starts only when all of them have finished.
+    ``fits``: it trains networks with ``training.resumable_fit`` on the recipe's trainer
+    settings. Under a launch of several processes (``pipeline.launch``) every rank runs it
+    (its fits are DDP fits), and its cache key records how many processes trained, which
+    sets the effective batch; any other stage runs on rank 0 alone.
     """
 
     name: str
@@ -141,3 +145,4 @@ class StageKind:
     publish: tuple[str, ...] = ()
     precision_dependent: bool = False
     waits_for_earlier: bool = False
+    fits: bool = False

@@ -418,4 +418,5 @@ STAGE = StageKind(
     run=_run,
     input_slots={"data": True, "images": False, "init": False},
     precision_dependent=True,
+    fits=True,
 )

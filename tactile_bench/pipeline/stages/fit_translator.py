@@ -183,4 +183,5 @@ STAGE = StageKind(
     exactly_one_of=("braille", "corpus"),
     check=_check,
     precision_dependent=True,
+    fits=True,
 )

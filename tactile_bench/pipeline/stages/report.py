@@ -105,6 +105,24 @@ def _timing(previous: list[StageResult]) -> tuple[list[list[str]], float]:
     return rows, float(sum(r.wall_time_s for r in previous))
 
 
+def processes_note(previous: list[StageResult]) -> str:
+    """A sentence for the stages that trained on several processes (DDP), whose optimizer
+    steps each averaged that many batches: their effective batch is larger than the
+    config's ``batch_size``, and so their numbers may differ from one process's. "" when
+    every stage trained on one process."""
+    by_count: dict[int, list[str]] = {}
+    for result in previous:
+        count = int(result.metrics.get("processes") or 1)
+        if count > 1:
+            by_count.setdefault(count, []).append(result.name)
+    parts = [
+        f"{', '.join(names)} trained on {count} processes (DDP): each optimizer step averaged "
+        f"{count} batches, an effective batch of {count} x the configured batch_size"
+        for count, names in sorted(by_count.items())
+    ]
+    return ("; ".join(parts) + ".") if parts else ""
+
+
 def _precision(result: StageResult) -> str:
     """The precision a stage's networks trained or sampled in; "—" for stages without."""
     value = result.metrics.get("compute_precision")
@@ -204,6 +222,8 @@ def _document(
         "overlap, so the run itself can take less. The precision column is the one each "
         "stage's networks trained or sampled in (— for stages without)."
     )
+    if processes_note(ctx.previous):
+        doc.paragraph(processes_note(ctx.previous))
     doc.heading("Reproducibility")
     doc.bullets([f"{k}: {v}" for k, v in _versions().items()] + [f"recipe seed: {ctx.seed}"])
     return doc
@@ -240,7 +260,9 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
 
     table_rows = [{k: v for k, v in r.items() if k != "per_class"} for r in rows]
     atomic_write_json(ctx.directory / "results.json", {"title": config.title, "rows": table_rows})
-    atomic_write_text(ctx.directory / "results.md", results_markdown(table_rows, config.title))
+    note = processes_note(ctx.previous)
+    table_md = results_markdown(table_rows, config.title) + (f"{note}\n" if note else "")
+    atomic_write_text(ctx.directory / "results.md", table_md)
     timing, total = _timing(ctx.previous)
     by_translator = {s["stage"]: s for s in similarity}
     atomic_write_json(
@@ -268,6 +290,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
                     "wall_time_s": float(t[2]),
                     "cached": r.cached,
                     "compute_precision": r.metrics.get("compute_precision"),
+                    "processes": int(r.metrics.get("processes") or 1),
                 }
                 for r, t in zip(ctx.previous, timing, strict=True)
             ],
