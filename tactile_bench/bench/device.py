@@ -12,7 +12,6 @@ from __future__ import annotations
 import shutil
 import statistics
 import subprocess
-import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator
@@ -22,6 +21,7 @@ from typing import Any
 
 import torch
 
+from tactile_bench.bench.timing import polling
 from tactile_bench.classify.module import BrailleClassifier
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.hardware import describe_device, resolve_precision
@@ -102,23 +102,18 @@ def gpu_busy(device: torch.device, period_s: float = 0.2) -> Iterator[dict[str, 
         return
     index = device.index if device.index is not None else torch.cuda.current_device()
     readings: list[float] = []
-    stop = threading.Event()
+    query = [smi, f"--id={index}", "--query-gpu=utilization.gpu", "--format=csv,noheader"]
 
     def poll() -> None:
-        query = [smi, f"--id={index}", "--query-gpu=utilization.gpu", "--format=csv,noheader"]
-        while not stop.is_set():
-            out = subprocess.run(query, capture_output=True, text=True, check=False).stdout
-            if out.strip().rstrip("%").strip().isdigit():
-                readings.append(float(out.strip().rstrip("%")))
-            stop.wait(period_s)
+        out = subprocess.run(query, capture_output=True, text=True, check=False).stdout
+        value = out.strip().rstrip("%").strip()
+        if value.isdigit():
+            readings.append(float(value))
 
-    thread = threading.Thread(target=poll, daemon=True)
-    thread.start()
     try:
-        yield found
+        with polling(poll, period_s):
+            yield found
     finally:
-        stop.set()
-        thread.join()
         found["samples"] = len(readings)
         found["busy_share"] = sum(r > 0 for r in readings) / len(readings) if readings else None
 

@@ -66,6 +66,25 @@ def _trim_heap() -> None:
 
 
 @contextmanager
+def polling(poll: Callable[[], None], interval_s: float) -> Iterator[None]:
+    """Call ``poll`` every ``interval_s`` in a background thread while the block runs."""
+    stop = threading.Event()
+
+    def loop() -> None:
+        while not stop.is_set():
+            poll()
+            stop.wait(interval_s)
+
+    thread = threading.Thread(target=loop, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
+@contextmanager
 def peak_memory(interval_s: float = 0.002) -> Iterator[PeakMemory]:
     """Sample RSS in a thread while the block runs; ``delta_mib`` is what the block added.
 
@@ -87,22 +106,14 @@ def peak_memory(interval_s: float = 0.002) -> Iterator[PeakMemory]:
             out.peak_mib = max(before, _maxrss_bytes()) / 2**20
         return
     peak = [start]
-    stop = threading.Event()
 
     def poll() -> None:
-        while not stop.is_set():
-            now = rss_bytes() or 0
-            if now > peak[0]:
-                peak[0] = now
-            stop.wait(interval_s)
+        peak[0] = max(peak[0], rss_bytes() or 0)
 
-    thread = threading.Thread(target=poll, daemon=True)
-    thread.start()
     try:
-        yield out
+        with polling(poll, interval_s):
+            yield out
     finally:
-        stop.set()
-        thread.join()
         peak[0] = max(peak[0], rss_bytes() or 0)
         out.start_mib = start / 2**20
         out.peak_mib = peak[0] / 2**20
