@@ -24,7 +24,7 @@ import torch
 
 from tactile_bench.diagnose import gapfit
 from tactile_bench.diagnose import validate as V
-from tactile_bench.diagnose.which import _splits
+from tactile_bench.diagnose.scene import fit_reference, make_scene
 
 AVERAGED = gapfit.pair_gap
 
@@ -53,7 +53,9 @@ def main() -> None:
         seed = int(np.random.SeedSequence([0, index, 1009]).generate_state(1)[0])  # run_case's
         data = V.planted_pairs(bank, case.params, 200, seed, 64)
         perm = torch.randperm(200, generator=torch.Generator().manual_seed(seed))
-        _, (base, target) = _splits(data, perm[:100], perm[100:])
+        fit, held = perm[:100], perm[100:]
+        base = make_scene(data, held, fit_reference(data, fit)).precompute()
+        target = gapfit.Target.of(data.real[held])
         plain = float(gapfit.model_gap(base, target, {}, 0).mean())
         for form, fn in (("averaged", AVERAGED), ("product", pair_gap_product)):
             gapfit.pair_gap = fn

@@ -1,72 +1,47 @@
 """``diagnose`` and ``export-pairs`` end to end, in-process, and the recipe stage ``diagnose``.
 
-While the "which"/"how far" modules are absent, a small stand-in (a fitted per-channel offset)
-takes their place; once ``tactile_bench.diagnose.which`` exists the real one runs with a
-single cheap candidate.
+The command runs the real diagnosis with a single cheap candidate; ``run.Steps`` takes a
+stand-in (a fitted per-channel offset) to check the report's plumbing against a known answer.
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import json
-import sys
-import types
-from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 import pytest
 import torch
 
 from tactile_bench.cli import main
 from tactile_bench.data.braille import BrailleSet
+from tactile_bench.diagnose.commands import summary_lines
 from tactile_bench.diagnose.paired import PairedData, load_paired, write_paired
-from tactile_bench.diagnose.run import stratified_split
+from tactile_bench.diagnose.ranking import EffectFit
+from tactile_bench.diagnose.result import Diagnosis, Split
+from tactile_bench.diagnose.run import Steps, diagnose, stratified_split
+from tactile_bench.diagnose.shrink import Downstream, HowFar, KidScores, Skipped
+from tactile_bench.diagnose.stability import Stability
+from tactile_bench.diagnose.where import WhereResult
+from tactile_bench.diagnose.which import WhichResult
 from tactile_bench.geometry.contacts import Poses
 from tests.test_diagnose_paired import tiny_pairs
 
-REAL_BACKEND = importlib.util.find_spec("tactile_bench.diagnose.which") is not None
-REAL_SHRINK = importlib.util.find_spec("tactile_bench.diagnose.shrink") is not None
 CANDIDATES = ["vignetting"]
 
 
-# ------------------------------------------------------------------ stand-in for which/shrink
-@dataclass
-class _Fit:
-    effect: str
-    params: dict[str, float]
-    gap_before: float
-    gap_after: float
-    shrink: float
-    ci_low: float
-    ci_high: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+@pytest.fixture
+def backend(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The candidate list to pass, and a few encoder steps: the tests check the plumbing."""
+    monkeypatch.setattr("tactile_bench.diagnose.shrink.ENCODER_STEPS", 10)
+    return CANDIDATES
 
 
-@dataclass
-class _Which:
-    ranking: list[_Fit]
-    singles: list[_Fit]
-    unexplained: float
-    residual_flagged: bool
-    gap_metric: str = "pixel MSE (stand-in)"
-
-    @property
-    def flagged(self) -> bool:
-        return self.residual_flagged
-
-    def to_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "ranking": [asdict(f) for f in self.ranking]}
-
-
+# ------------------------------------------------------------------ a stand-in for the steps
 def _offset(data: PairedData, idx: torch.Tensor) -> torch.Tensor:
     return (data.real[idx] - data.sim[idx]).mean((0, 2, 3))
 
 
-def _apply(data: PairedData, effects: dict, idx: torch.Tensor | None = None, seed: int = 0):
+def _apply(data: PairedData, effects: dict, idx: torch.Tensor | None = None, *_: object):
     sim = data.sim if idx is None else data.sim[idx]
     if "offset" in effects:
         p = effects["offset"]
@@ -74,49 +49,47 @@ def _apply(data: PairedData, effects: dict, idx: torch.Tensor | None = None, see
     return sim
 
 
-def _explain(data, fit_idx, held_idx, candidates=None, seed=0, progress=True) -> _Which:
+def _held_mse(data: PairedData, held_idx: torch.Tensor, effects: dict) -> float:
+    return float((data.real[held_idx] - _apply(data, effects, held_idx)).square().mean())
+
+
+def _explain(data, fit_idx, held_idx, candidates=None, seed=0, progress=True) -> WhichResult:
     r, g, b = _offset(data, fit_idx).tolist()
     effects = {"offset": {"r": r, "g": g, "b": b}}
-    before = float((data.real[held_idx] - data.sim[held_idx]).square().mean())
-    after = float((data.real[held_idx] - _apply(data, effects, held_idx)).square().mean())
+    before, after = _held_mse(data, held_idx, {}), _held_mse(data, held_idx, effects)
     shrink = (before - after) / before
-    fit = _Fit("offset", effects["offset"], before, after, shrink, shrink - 0.01, shrink + 0.01)
-    return _Which([fit] if shrink > 0 else [], [fit], after / before, after / before > 0.5)
+    fit = EffectFit("offset", effects["offset"], before, after, shrink, shrink - 0.01, shrink)
+    unexplained = after / before
+    return WhichResult([fit], [fit], unexplained, unexplained > 0.5, "pixel MSE (stand-in)")
 
 
-def _how_far(data, fit_idx, held_idx, effects, downstream=True, seed=0, progress=True):
-    before = float((data.real[held_idx] - data.sim[held_idx]).square().mean())
-    after = float((data.real[held_idx] - _apply(data, effects, held_idx)).square().mean())
-    down = {"skipped": "--no-downstream"} if not downstream else {"real_accuracy": 1.0}
-    return {"pixel": {"before": {"mse": before}, "after": {"mse": after}}, "downstream": down}
+def _how_far(data, fit_idx, held_idx, effects, downstream=True, seed=0, progress=True) -> HowFar:
+    before = {"mse": _held_mse(data, held_idx, {})}
+    after = {"mse": _held_mse(data, held_idx, effects)}
+    return HowFar(effects, before, after, Skipped("stand-in"), Skipped("--no-downstream"))
 
 
-@pytest.fixture
-def backend(monkeypatch: pytest.MonkeyPatch) -> list[str] | None:
-    """The candidate list to pass: the real module's cheap one, or None with the stand-in."""
-    if REAL_SHRINK:  # a few encoder steps: the test checks the plumbing, not the KID
-        shrink_mod = importlib.import_module("tactile_bench.diagnose.shrink")
-        monkeypatch.setattr(shrink_mod, "ENCODER_STEPS", 10, raising=False)
-    else:
-        shrink = types.ModuleType("tactile_bench.diagnose.shrink")
-        shrink.how_far = _how_far
-        monkeypatch.setitem(sys.modules, "tactile_bench.diagnose.shrink", shrink)
-    if REAL_BACKEND:
-        return CANDIDATES
-    which = types.ModuleType("tactile_bench.diagnose.which")
-    which.explain_gap, which.apply_effects = _explain, _apply
-    monkeypatch.setitem(sys.modules, "tactile_bench.diagnose.which", which)
-    return None
+def test_the_report_holds_what_the_steps_found(tmp_path: Path) -> None:
+    data = tiny_pairs(n=12)
+    steps = Steps(explain_gap=_explain, how_far=_how_far, apply_effects=_apply)
+    result = diagnose(data, tmp_path / "out", steps=steps, progress=False)
+    assert result.which.ranking[0].effect == "offset" and result.which.unexplained < 0.01
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["ranking"][0]["effect"] == "offset" and report["unexplained"] < 0.01
+    assert report["how_far"]["pixel"]["after"]["mse"] < report["how_far"]["pixel"]["before"]["mse"]
+    assert report["downstream"] == {"skipped": "--no-downstream"}
+    text = "\n".join(summary_lines(result))
+    assert "offset" in text and "downstream: skipped (--no-downstream)" in text
 
 
 # ------------------------------------------------------------------ diagnose
 def test_diagnose_no_downstream_writes_both_files(
-    tmp_path: Path, backend: list[str] | None, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, backend: list[str], capsys: pytest.CaptureFixture[str]
 ) -> None:
     root = write_paired(tmp_path / "pairs", tiny_pairs(n=12))
     out = tmp_path / "out"
     args = ["diagnose", str(root), "--out", str(out), "--no-downstream", "--no-progress"]
-    args += ["--candidates", *backend] if backend else []
+    args += ["--candidates", *backend]
     assert main(args) == 0
     stdout = capsys.readouterr().out
     assert "where the gap lies" in stdout and str(out / "report.html") in stdout
@@ -133,15 +106,13 @@ def test_diagnose_no_downstream_writes_both_files(
         assert set(row) >= {"ci_low", "ci_high"}
     # real = sim + 10 everywhere: the uniform offset dominates where the gap lies
     assert report["where"]["axes"]["band"][0]["part"] == "DC (uniform offset)"
-    if not REAL_BACKEND:
-        assert report["ranking"][0]["effect"] == "offset" and report["unexplained"] < 0.01
     page = (out / "report.html").read_text()
     assert page.count("data:image/png;base64,") >= 5  # maps, shares, spectrum, shrinks, samples
     assert 'src="http' not in page and "<table>" in page
 
 
 def test_diagnose_bad_input_names_the_file(
-    tmp_path: Path, backend: list[str] | None, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, backend: list[str], capsys: pytest.CaptureFixture[str]
 ) -> None:
     root = write_paired(tmp_path / "pairs", tiny_pairs(n=6))
     victim = root / "sim" / "A" / "p03.png"
@@ -213,7 +184,7 @@ def test_export_pairs_from_a_stage_and_a_run(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------ the recipe stage
-def test_diagnose_stage(tmp_path: Path, backend: list[str] | None) -> None:
+def test_diagnose_stage(tmp_path: Path, backend: list[str]) -> None:
     from tactile_bench.pipeline.stages import STAGES
     from tactile_bench.pipeline.stages.base import StageContext, StageResult
 
@@ -245,95 +216,62 @@ def test_diagnose_stage(tmp_path: Path, backend: list[str] | None) -> None:
     assert kind.precision_dependent  # with downstream classifiers its result depends on it
 
 
-def _summary_report(**fields: Any) -> dict[str, Any]:
-    """The fields ``_summary_lines`` reads of a diagnosis of 8 pairs, with ``fields`` on top."""
-    base = {
-        "n_pairs": 8,
-        "split": {"n_fit": 4, "n_held": 4},
-        "timing_s": {"total": 1.0},
-        "where": {"mse": 3.0, "dominant": []},
-        "ranking": [],
-        "unexplained": 0.0,
-        "residual_flagged": False,
-    }
-    return base | fields
-
-
-def test_summary_lines_tolerate_any_how_far_fields() -> None:
-    from tactile_bench.diagnose.commands import _summary_lines
-
-    where = {"mse": 3.0, "dominant": [{"axis": "band", "part": "DC", "share": 0.5}]}
-    report = _summary_report(
+def _diagnosis(how_far: HowFar | None = None, **which: object) -> Diagnosis:
+    """A diagnosis of 8 pairs with the "which" fields ``which`` (a plain one by default)."""
+    fields = {"ranking": [], "singles": [], "unexplained": 0.0, "residual_flagged": False}
+    where = WhereResult({"mse": 3.0, "dominant": []})
+    pixel = {"mse": 9.0, "ssim": 0.5}, {"mse": 4.0, "ssim": 0.7}
+    return Diagnosis(
+        n_pairs=8,
+        size=16,
+        input={},
+        split=Split(4, 4, 0.5, 0),
         where=where,
-        unexplained=1.0,
-        residual_flagged=True,
-        how_far={
-            "pixel": {"before": {"mse": 9.0, "ssim": 0.5}, "after": {"mse": 4.0, "ssim": 0.7}},
-            "distribution": {"kid_before": 0.1, "kid_after": None},
-            "downstream": {"classes": 3, "classifier": "tiny", "real_accuracy": 0.9},
-        },
+        where_held=None,
+        which=WhichResult(**(fields | which), gap_metric="g"),  # type: ignore[arg-type]
+        how_far=how_far or HowFar({}, *pixel, Skipped("x"), Skipped("--no-downstream")),
+        samples=[],
+        timing_s={"total": 1.0},
     )
-    text = "\n".join(_summary_lines(report))
-    assert "mse 9 -> 4" in text and "real 0.9" in text and "no candidate" in text
+
+
+def test_summary_lines_read_every_how_far_part() -> None:
+    kid = KidScores(0.1, 0.05, 0.01, 0.01, "enc")
+    down = Downstream(3, 6, 6, 2, "tiny", {}, 0.3, 0.6, 0.9)
+    far = HowFar({}, {"mse": 9.0, "ssim": 0.5}, {"mse": 4.0, "ssim": 0.7}, kid, down)
+    result = _diagnosis(far, unexplained=1.0, residual_flagged=True)
+    result.where.summary["dominant"] = [{"axis": "band", "part": "DC", "share": 0.5}]
+    text = "\n".join(summary_lines(result))
+    assert "mse 9 -> 4" in text and "KID 0.1 -> 0.05" in text and "real 0.9" in text
+    assert "no candidate" in text and "band" in text
 
 
 def test_the_summary_warns_when_the_depth_split_names_another_effect() -> None:
-    from tactile_bench.diagnose.commands import _summary_lines
-
-    stability = {
-        "named_first": "led_diffusivity",
-        "agrees": False,
-        "n_fit": 50,
-        "n_held": 50,
-        "depth_fit_mm": 0.9,
-        "depth_held_mm": 1.1,
-        "accepted": ["optical_response", "elastic_spread"],
-    }
-    report = _summary_report(unexplained=0.02, stability=stability)
-    text = "\n".join(_summary_lines(report))
+    accepted = ["optical_response", "elastic_spread"]
+    stability = Stability("led_diffusivity", False, 50, 50, 0.9, 1.1, accepted)
+    text = "\n".join(summary_lines(_diagnosis(unexplained=0.02, stability=stability)))
     assert "names led_diffusivity first" in text and "outside the candidates" in text
     assert "no candidate explains" not in text  # the residual itself is small
-    agreeing = {**report, "stability": {**stability, "agrees": True}}
-    assert "names led_diffusivity" not in "\n".join(_summary_lines(agreeing))
+    agreeing = Stability("led_diffusivity", True, 50, 50, 0.9, 1.1, accepted)
+    assert "names led_diffusivity" not in "\n".join(summary_lines(_diagnosis(stability=agreeing)))
 
 
 def test_first_lines_show_the_background_line_sim_optics_and_confusable_sets() -> None:
-    from tactile_bench.diagnose.commands import _summary_lines
-
-    where = {"mse": 3.0, "dominant": []}
-    fit = {"effect": "vignetting", "shrink": 0.6, "ci_low": 0.5, "ci_high": 0.7}
-    report = {
-        "n_pairs": 8,
-        "split": {"n_fit": 4, "n_held": 4},
-        "timing_s": {"total": 1.0},
-        "where": where,
-        "background": {"shrink": 0.42, "ci_low": 0.4, "ci_high": 0.44},
-        "which": {"sim_optics": {"model": "fitted lookup", "builtin_mse": 9.0, "lookup_mse": 1.0}},
-        "ranking": [
-            {
-                **fit,
-                "gap_before": 2.0,
-                "gap_after": 0.8,
-                "confusable_with": ["optical_response"],
-                "separate_by": "a flat press",
-            }
-        ],
-        "unexplained": 0.1,
-        "residual_flagged": False,
-    }
-    lines = _summary_lines(report)
+    fit = EffectFit("vignetting", {}, 2.0, 0.8, 0.6, 0.5, 0.7, ["optical_response"], "a press")
+    optics = {"model": "fitted lookup", "builtin_mse": 9.0, "lookup_mse": 1.0}
+    background = EffectFit("measured_background", {}, 1.0, 0.58, 0.42, 0.4, 0.44)
+    result = _diagnosis(ranking=[fit], background=background, sim_optics=optics)
+    lines = summary_lines(result)
     assert lines[1].startswith("background:") and "0.420 [0.400, 0.440]" in lines[1]
     assert lines[2].startswith("sim optics for geometry effects: fitted lookup")
     assert lines[3] == (
         "confusable: vignetting ~ optical_response (the held-out pairs cannot tell them apart)"
     )
-    composited = {**report, "background": None, "background_note": "the sim was composited"}
-    assert _summary_lines(composited)[1] == "background: the sim was composited"
+    composited = _diagnosis(ranking=[fit], background_note="the sim was composited")
+    assert summary_lines(composited)[1] == "background: the sim was composited"
 
 
 def test_the_summary_says_unexplained_is_counted_above_the_pairs_noise() -> None:
-    from tactile_bench.diagnose.commands import _summary_lines
-
-    report = _summary_report(which={"noise": {"sim": [0.0, 0.0, 0.0], "real": [2.1, 2.4, 2.2]}})
-    text = "\n".join(_summary_lines(report))
+    noise = {"sim": [0.0, 0.0, 0.0], "real": [2.1, 2.4, 2.2]}
+    text = "\n".join(summary_lines(_diagnosis(noise=noise)))
     assert "counted above the pairs' own noise (std, grey levels: sim 0, real 2.4)" in text

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from tactile_bench.diagnose.candidates import lookup_for, make_base
 from tactile_bench.diagnose.paired import load_paired, write_paired
+from tactile_bench.diagnose.scene import fit_reference, make_scene
+from tactile_bench.diagnose.simulate import apply_effects, lookup_for
 from tactile_bench.diagnose.validate import planted_pairs
-from tactile_bench.diagnose.which import apply_effects, explain_gap
+from tactile_bench.diagnose.which import explain_gap
 from tactile_bench.effects._taxim_fit import SENSORS
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import BrailleSpec
@@ -36,12 +37,12 @@ def foreign_sensor_pairs():
 def test_the_lookup_is_fitted_on_the_fit_split_and_nothing_else(foreign_sensor_pairs) -> None:
     data = foreign_sensor_pairs
     fit, held = torch.arange(0, 24), torch.arange(24, 48)
-    table = lookup_for(make_base(data, held, lookup_from=fit), {})
+    table = lookup_for(make_scene(data, held, fit_reference(data, fit)), {})
     scrambled = dataclasses.replace(data, real=data.real.clone())
     scrambled.real[held] = 255 - scrambled.real[held]  # held-out frames must not matter
-    again = lookup_for(make_base(scrambled, held, lookup_from=fit), {})
+    again = lookup_for(make_scene(scrambled, held, fit_reference(scrambled, fit)), {})
     torch.testing.assert_close(table, again)
-    without = make_base(data, held)
+    without = make_scene(data, held)
     with pytest.raises(TactileBenchError, match="no fitted lookup"):
         lookup_for(without, {})
 

@@ -7,8 +7,9 @@ from dataclasses import dataclass, field
 import pytest
 import torch
 
+from tactile_bench.diagnose.ranking import EffectFit
 from tactile_bench.diagnose.stability import MIN_PAIRS, check, depth_halves, warning
-from tactile_bench.diagnose.which import EffectFit, WhichResult
+from tactile_bench.diagnose.which import WhichResult
 
 
 @dataclass
@@ -69,7 +70,7 @@ def test_agrees_only_with_the_selection_or_its_rivals(named: list[str], agrees: 
     result = check(ranking, _depth([0.1 * i for i in range(10)]), lambda f, h: map(_Entry, named))
     assert result is not None and result.agrees is agrees
     assert result.accepted == ["blur", "gains", "spread"]
-    assert (warning(result.to_dict()) is None) is agrees
+    assert (warning(result) is None) is agrees
 
 
 def test_nothing_to_check_without_a_selection_or_with_too_few_pairs() -> None:
@@ -84,7 +85,7 @@ def test_the_warning_names_the_effect_and_the_depths() -> None:
     result = check(
         [_Entry("blur")], _depth([0.1 * i for i in range(10)]), lambda f, h: [_Entry("x")]
     )
-    text = warning(result.to_dict())
+    text = warning(result)
     assert text is not None and "names x first" in text and "blur" in text
     assert "0.40 mm" in text and "0.50 mm" in text
     assert warning(None) is None

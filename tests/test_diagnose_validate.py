@@ -10,7 +10,7 @@ import torch
 
 from tactile_bench.cli import main
 from tactile_bench.diagnose.candidates import DEFAULT_CANDIDATES
-from tactile_bench.diagnose.shrink import how_far
+from tactile_bench.diagnose.shrink import KidScores, Skipped, how_far
 from tactile_bench.diagnose.validate import (
     Case,
     draw_params,
@@ -113,15 +113,14 @@ def test_how_far_reports_pixel_distribution_and_skips_downstream(bank, monkeypat
     data = planted_pairs(bank, {"vignetting": {"corner_loss": 0.5}}, 16, 2, 32)
     idx = torch.arange(16)
     out = how_far(data, idx[:8], idx[8:], {"vignetting": {"corner_loss": 0.5}}, downstream=False)
-    assert out["pixel"]["after"]["mse"] < out["pixel"]["before"]["mse"]
-    assert out["pixel"]["after"]["ssim"] > out["pixel"]["before"]["ssim"]
-    assert {"kid_before", "kid_after"} <= set(out["distribution"])
-    assert "skipped" in out["downstream"]
+    assert out.pixel_after["mse"] < out.pixel_before["mse"]
+    assert out.pixel_after["ssim"] > out.pixel_before["ssim"]
+    assert isinstance(out.distribution, KidScores) and out.distribution.kid_before > 0
+    assert out.downstream == Skipped("--no-downstream")
     unlabelled = planted_pairs(bank, {}, 8, 2, 32)
     unlabelled.labels = [""] * 8
-    assert (
-        "unlabelled" in how_far(unlabelled, idx[:4], idx[4:8], {}, seed=0)["downstream"]["skipped"]
-    )
+    down = how_far(unlabelled, idx[:4], idx[4:8], {}, seed=0).downstream
+    assert isinstance(down, Skipped) and "unlabelled" in down.reason
 
 
 @pytest.mark.slow

@@ -8,17 +8,20 @@ import pytest
 import torch
 
 from tactile_bench.diagnose import gapfit
-from tactile_bench.diagnose.candidates import (
-    CANDIDATES,
-    DEFAULT_CANDIDATES,
-    get_candidate,
-    make_base,
-    render,
-)
+from tactile_bench.diagnose.candidates import CANDIDATES, DEFAULT_CANDIDATES, get_candidate
 from tactile_bench.diagnose.gapfit import Target, fit_candidate, model_gap, pair_gap
 from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.ranking import (
+    EffectFit,
+    paired_difference_ci,
+    pick_effect,
+    shrink_ci,
+    with_rivals,
+)
+from tactile_bench.diagnose.scene import fit_reference, make_scene, sim_optics_model
+from tactile_bench.diagnose.simulate import apply_effects, render
 from tactile_bench.diagnose.validate import planted_pairs
-from tactile_bench.diagnose.which import WhichResult, apply_effects, explain_gap
+from tactile_bench.diagnose.which import WhichResult, explain_gap
 from tactile_bench.effects import EFFECTS
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import BrailleSpec
@@ -61,7 +64,7 @@ def test_no_effect_is_the_sim_change_on_the_measured_frame(bank) -> None:
     same = apply_effects(data, {"elastic_spread": {"sigma_mm": 0.0}})
     torch.testing.assert_close(same, onto_measured, atol=1e-3, rtol=0)
     # before the background correction the base is the sim image itself
-    plain = render(make_base(data, onto_measured=False), {})
+    plain = render(make_scene(data, onto_measured=False), {})
     torch.testing.assert_close(plain, data.sim.float())
 
 
@@ -90,7 +93,7 @@ def test_candidate_reproduces_the_planted_sensor(bank) -> None:
 def test_gap_sees_noise_that_mse_punishes(bank) -> None:
     noise = {"camera_noise": {"read_noise": 8.0, "shot_gain": 0.0}}
     data = _pairs(bank, {"camera_noise": {"read_noise": 8.0, "shot_gain": 0.0}}, n=12)
-    base, target = make_base(data), Target.of(data.real)
+    base, target = make_scene(data), Target.of(data.real)
     draws = [render(base, noise, torch.Generator().manual_seed(s)) for s in (101, 202)]
     plain = pair_gap([data.sim.float()], target).mean()
     assert pair_gap(draws, target).mean() < 0.3 * plain
@@ -108,7 +111,7 @@ def test_gap_sees_noise_that_mse_punishes(bank) -> None:
 )
 def test_fit_recovers_planted_parameters(bank, name: str, params: dict) -> None:
     data = _pairs(bank, {name: params})
-    fitted = fit_candidate(name, make_base(data).precompute(), Target.of(data.real))
+    fitted = fit_candidate(name, make_scene(data).precompute(), Target.of(data.real))
     for key, true in params.items():
         p = EFFECTS[name].param(key)
         assert abs(fitted[key] - true) < 0.06 * (p.high - p.low), (key, fitted[key], true)
@@ -117,7 +120,7 @@ def test_fit_recovers_planted_parameters(bank, name: str, params: dict) -> None:
 def test_fit_does_not_read_parameter_defaults(bank, monkeypatch) -> None:
     """Moving every default elsewhere in its range must not change a fit."""
     data = _pairs(bank, {"vignetting": {"corner_loss": 0.3}}, n=12)
-    base, target = make_base(data).precompute(), Target.of(data.real)
+    base, target = make_scene(data).precompute(), Target.of(data.real)
     before = fit_candidate("gamma_white_balance", base, target)
     effect = EFFECTS["gamma_white_balance"]
     moved = tuple(dataclasses.replace(p, default=p.high) for p in effect.params)
@@ -170,7 +173,7 @@ def test_explain_gap_rejects_bad_input(bank) -> None:
 
 def test_model_gap_is_per_pair(bank) -> None:
     data = _pairs(bank, {"vignetting": {"corner_loss": 0.3}}, n=6)
-    gaps = model_gap(make_base(data), Target.of(data.real), {})
+    gaps = model_gap(make_scene(data), Target.of(data.real), {})
     assert gaps.shape == (6,) and bool((gaps > 0).all())
     assert gapfit.GAP_METRIC.startswith("structure + texture")
 
@@ -178,7 +181,7 @@ def test_model_gap_is_per_pair(bank) -> None:
 def test_jpeg_quality_is_found_to_the_whole_value(bank) -> None:
     """The codec's tables change at every whole quality: only the exact one closes the gap."""
     data = _pairs(bank, {"jpeg": {"quality": 37.0}}, n=16)
-    base, target = make_base(data).precompute(), Target.of(data.real)
+    base, target = make_scene(data).precompute(), Target.of(data.real)
     fitted = fit_candidate("jpeg", base, target)
     assert fitted == {"quality": 37.0, "stored_size": 0.0}
     near = model_gap(base, target, {"jpeg": {"quality": 39.0}}).mean()
@@ -186,7 +189,6 @@ def test_jpeg_quality_is_found_to_the_whole_value(bank) -> None:
 
 
 def test_rivals_the_held_out_pairs_cannot_tell_apart_are_reported() -> None:
-    from tactile_bench.diagnose.which import EffectFit, _confusable, paired_difference_ci
 
     gen = torch.Generator().manual_seed(0)
     before = torch.full((60,), 10.0)
@@ -202,10 +204,10 @@ def test_rivals_the_held_out_pairs_cannot_tell_apart_are_reported() -> None:
         "defocus_blur": ({}, weaker),
         "jpeg": ({}, torch.full((60,), 9.95)),  # below the selection threshold: not a rival
     }
-    out = _confusable(row, chosen, before, options, threshold=0.2, seed=0)
+    out = with_rivals(row, chosen, before, options, threshold=0.2, seed=0)
     assert out.confusable_with == ["gamma_white_balance"]
     assert "no-contact frame" in out.separate_by or "more pairs" in out.separate_by
-    alone = _confusable(row, chosen, before, {"vignetting": ({}, chosen)}, 0.2, 0)
+    alone = with_rivals(row, chosen, before, {"vignetting": ({}, chosen)}, 0.2, 0)
     assert alone.confusable_with == [] and alone.separate_by == ""
 
 
@@ -233,7 +235,7 @@ def test_registration_finds_a_constant_misregistration(bank) -> None:
         {"pose_error": {**EFFECTS["pose_error"].neutral_params(), **planted["pose_error"]}},
         n=16,
     )
-    base = make_base(data)
+    base = make_scene(data)
     shifted = render(base, {"pose_error": {"offset_x_mm": 0.6}})
     zero = render(base, {"pose_error": {"offset_x_mm": 0.0}})
     assert float((shifted - data.real).abs().mean()) < 0.5 * float((zero - data.real).abs().mean())
@@ -243,24 +245,23 @@ def test_registration_finds_a_constant_misregistration(bank) -> None:
 
 def test_sim_optics_model_is_the_one_that_reproduces_the_users_sim(bank) -> None:
     """Built-in optics for our own simulator's pairs, a fitted lookup for another's."""
-    from tactile_bench.diagnose.candidates import sim_optics_model
     from tactile_bench.diagnose.foreign import foreign_pairs
 
     ours = _pairs(bank, {}, n=16)
     change = ours.sim - ours.sim_background
-    table, errors = sim_optics_model(ours.depth, change, ours.sim_background, (18.0, 24.0))
-    assert table.numel() == 0 and float(errors[0]) < float(errors[1])
+    choice = sim_optics_model(ours.depth, change, ours.sim_background, (18.0, 24.0))
+    assert choice.lookup is None and choice.builtin_mse < choice.lookup_mse
     theirs = foreign_pairs(bank, None, {}, 16, 3, SIZE, "lambert", "own")
     change = theirs.sim - theirs.sim_background
-    table, errors = sim_optics_model(theirs.depth, change, theirs.sim_background, (18.0, 24.0))
-    assert table.numel() > 0 and float(errors[1]) < float(errors[0])
+    choice = sim_optics_model(theirs.depth, change, theirs.sim_background, (18.0, 24.0))
+    assert choice.lookup is not None and choice.lookup_mse < choice.builtin_mse
 
 
 def test_press_depth_finds_a_shallower_press(bank) -> None:
     """press_error: real contacts pressed to 0.8 of the commanded depth."""
     planted = {**EFFECTS["press_error"].neutral_params(), "depth_scale": 0.8}
     data = _pairs(bank, {"press_error": planted}, n=16)
-    base = make_base(data)
+    base = make_scene(data)
     fitted = fit_candidate("press_error", base, Target.of(data.real))
     assert abs(fitted["depth_scale"] - 0.8) < 0.08 and abs(fitted["depth_offset_mm"]) < 0.05
     gap = {
@@ -280,7 +281,7 @@ def test_registration_refits_jointly_with_geometry_effects(bank) -> None:
         "elastic_spread": {"sigma_mm": 0.5, "contact_scale": 0.4},
         "press_error": {"depth_scale": 0.9, "depth_offset_mm": 0.0},
     }
-    joint = fit_jointly(effects, make_base(data), Target.of(data.real))
+    joint = fit_jointly(effects, make_scene(data), Target.of(data.real))
     assert set(joint) == set(effects) and joint["press_error"] == effects["press_error"]
 
 
@@ -290,13 +291,13 @@ def test_tone_curve_acts_at_the_real_light_of_a_composited_sim(bank) -> None:
     redoes it, as the camera did; composited frames would be curved twice otherwise."""
     gamma = EFFECTS["gamma_white_balance"]
     params = {"gamma": 1.7, "wb_r": 0.9, "wb_b": 1.1}
-    base = make_base(_pairs(bank, {}, n=6))
+    base = make_scene(_pairs(bank, {}, n=6))
     light = base.sim_frame  # the light the real sensor saw with no contact
     change = base.delta
     full = {**gamma.neutral_params(), **params}
     real = gamma.apply((light + change).clamp(0, 255), full, None, base.context())
     measured = gamma.apply(light, full, None, base.context())
-    composited = dataclasses.replace(base, background=measured, sim_background=measured)
+    composited = dataclasses.replace(base, background=measured, sim_frame=measured)
     fitted = render(composited, {"gamma_white_balance": params})
     torch.testing.assert_close(fitted, real.clamp(0, 255), atol=0.05, rtol=0)
     undone = get_candidate("gamma_white_balance").undo(measured, params)
@@ -314,7 +315,7 @@ def test_stored_jpeg_codes_the_uncompressed_frame_once(bank) -> None:
     sim_frame = data.sim_background[None]
     real = libjpeg(data.sim.float(), 40)
     coded = dataclasses.replace(data, real=real, background=libjpeg(sim_frame, 40)[0])
-    base = make_base(coded)
+    base = make_scene(coded)
     stored = render(base, {"jpeg": {"quality": 40.0, "stored_size": 1.0}})
     assert float((stored - real).abs().max()) <= 1.0  # the same bytes, up to rounding
     twice = libjpeg(render(base, {}), 40)  # the old composite: coded onto a coded frame
@@ -326,7 +327,7 @@ def test_coupled_geometry_parameters_are_fitted_on_a_grid(bank) -> None:
     at the other's start stalls (it once fitted sigma 0.3 mm for a planted 2.5 mm)."""
     planted = {"elastic_spread": {"sigma_mm": 2.4, "contact_scale": 0.9}}
     data = _pairs(bank, planted, n=24)
-    base, target = make_base(data), Target.of(data.real)
+    base, target = make_scene(data), Target.of(data.real)
     fitted = fit_candidate("elastic_spread", base, target)
     before = float(model_gap(base, target, {}).mean())
     after = float(model_gap(base, target, {"elastic_spread": fitted}).mean())
@@ -338,11 +339,10 @@ def test_of_effects_the_data_cannot_tell_apart_the_simplest_is_ranked_first(bank
     """Two fits whose images differ by less than 8-bit rounding are one explanation: the
     one with fewer fitted numbers comes first (the lookup has hundreds), the other is named
     as confusable; clearly different images keep the better fit first."""
-    from tactile_bench.diagnose.which import _pick
 
     data = _pairs(bank, {}, n=24)
     idx = torch.arange(24)
-    base = make_base(data, idx, lookup_from=idx)
+    base = make_scene(data, idx, fit_reference(data, idx))
     before = torch.full((24,), 10.0)
     lookup_gap = 5 + torch.rand(24, generator=torch.Generator().manual_seed(0))
     options = {
@@ -353,24 +353,23 @@ def test_of_effects_the_data_cannot_tell_apart_the_simplest_is_ranked_first(bank
         "vignetting": ({"corner_loss": 0.0}, lookup_gap + 0.5),
     }
     assert CANDIDATES["optical_response"].fitted_numbers(base) > 100
-    row = _pick(options, {}, before, 0.2, base, 0.1, 0)
+    row = pick_effect(options, {}, before, 0.2, base, 0.1, 0).row
     assert row.effect == "led_diffusivity"
     assert row.confusable_with == ["optical_response", "vignetting"]
     del options["vignetting"]
     # a rival that changes the images (and is worse on every pair) is not confusable
     options["led_diffusivity"] = ({"gain_r": 0.5, "gain_g": 1.5}, lookup_gap + 0.1)
-    row = _pick(options, {}, before, 0.2, base, 0.1, 0)
+    row = pick_effect(options, {}, before, 0.2, base, 0.1, 0).row
     assert row.effect == "optical_response" and row.confusable_with == []
 
 
 def test_a_shrink_interval_always_holds_its_estimate() -> None:
     """No gap to begin with (a sim equal to the real): the estimate is 0, while every
     resample divides by ~0 and the percentile interval alone lies near -1e11."""
-    from tactile_bench.diagnose.which import _row, shrink_ci
 
     before, after = torch.zeros(60), torch.full((60,), 0.1)
     assert shrink_ci(before, after)[1] < -1e6  # the raw interval misses the estimate
-    row = _row("vignetting", {}, before, after, 0)
+    row = EffectFit.measure("vignetting", {}, before, after, 0)
     assert row.shrink == 0.0 and row.ci_low <= row.shrink <= row.ci_high
 
 
@@ -385,7 +384,7 @@ def test_the_grid_holds_every_point_a_sweep_from_the_start_could_reach() -> None
 def test_a_tone_curve_keeps_the_noise_drawn_before_it(bank) -> None:
     """Noise comes before the tone curve in the catalogue: the curve acts on the composite
     with its noise, not on the noise-free change."""
-    base = make_base(_pairs(bank, {}, n=4))
+    base = make_scene(_pairs(bank, {}, n=4))
     tone = {"gamma_white_balance": {"gamma": 1.5}}
     noisy = {**tone, "camera_noise": {"read_noise": 8.0}}
     gen = torch.Generator().manual_seed(0)

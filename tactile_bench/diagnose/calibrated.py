@@ -5,7 +5,7 @@
 fitted parameters, plus white camera noise that tops the model's own pixel noise up to the
 real frames' (measured frame to frame, ``metrics.estimate_pixel_noise``, as
 ``shrink.match_noise`` does). ``translate_foreground`` renders the plain simulator's image of
-each depth with those effects added (``candidates.render``) and that noise. Unfitted it is the
+each depth with those effects added (``simulate.render``) and that noise. Unfitted it is the
 plain ``sim`` translator, image for image.
 
 Both sides of a pair share one no-contact frame: the sim is rendered noise-free over the
@@ -25,7 +25,6 @@ import logging
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -33,10 +32,18 @@ import torch
 from lightning.pytorch.loggers import Logger
 from pydantic import Field, field_validator
 
-from tactile_bench.diagnose.candidates import Base, get_candidate, make_base, render
+from tactile_bench.diagnose.candidates import get_candidate
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.diagnose.report import jsonable
 from tactile_bench.diagnose.run import MIN_PAIRS, selected_effects, stratified_split
+from tactile_bench.diagnose.scene import (
+    FitReference,
+    PairScene,
+    SimOpticsChoice,
+    fit_reference,
+    make_scene,
+)
+from tactile_bench.diagnose.simulate import render
 from tactile_bench.diagnose.which import explain_gap
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json
@@ -186,9 +193,8 @@ class CalibratedTranslator(SimTranslator):
         )
         effects = selected_effects(which)
         # what render needs later: the response lookup's fit pairs and the sim optics model,
-        # exactly as the diagnosis built them (make_base with the fit split)
-        fit_base = make_base(data, fit_idx, lookup_from=fit_idx, lookup_cache={})
-        self._set_state(fit_base, effects)
+        # exactly as the diagnosis built them (the fit split's reference)
+        self._set_state(fit_reference(data, fit_idx), effects)
         real_std = estimate_pixel_noise(foreground)
         own_std = estimate_pixel_noise(self._model_foreground(depth, self._generator(None)))
         added = torch.zeros(3)
@@ -222,14 +228,16 @@ class CalibratedTranslator(SimTranslator):
         )
         return None
 
-    def _set_state(self, fit_base: Base, effects: Mapping[str, Mapping[str, float]]) -> None:
+    def _set_state(
+        self, reference: FitReference, effects: Mapping[str, Mapping[str, float]]
+    ) -> None:
         """Keep the lookup's fit pairs (only when ``optical_response`` needs them) and the
         sim optics model; renders share one cache of lookups fitted from them."""
         empty = torch.zeros(0)
-        lookup = fit_base.lookup_fit if "optical_response" in effects else None
-        self.lookup_depth = empty if lookup is None else lookup[0].clone()
-        self.lookup_target = empty if lookup is None else lookup[1].clone()
-        table = fit_base.sim_lookup
+        response = "optical_response" in effects
+        self.lookup_depth = reference.depth.clone() if response else empty
+        self.lookup_target = reference.real_change.clone() if response else empty
+        table = reference.sim_optics.lookup
         self.sim_table = empty if table is None else table.clone()
         self.noise_std = empty  # measured next, against the model's own noise
         self._record = {"effects": {k: dict(v) for k, v in effects.items()}}
@@ -249,15 +257,21 @@ class CalibratedTranslator(SimTranslator):
             )
         return out
 
-    def _base(self, depth: torch.Tensor, background: torch.Tensor) -> Base:
-        """The candidate simulator's base scene of ``depth`` (the diagnosis's ``make_base`` of
-        noise-free sim images on ``background``), with the fitted lookup inputs attached."""
+    def _scene(self, depth: torch.Tensor, background: torch.Tensor) -> PairScene:
+        """The candidate simulator's scene of ``depth`` (the diagnosis's ``make_scene`` of
+        noise-free sim images on ``background``), with the fit split's reference kept."""
         sim = self.optics.render(depth, background, None)
         names = [""] * len(depth)  # real is not read without a lookup split: sim stands in
-        base = make_base(PairedData(depth, sim, sim, background, None, names, names))
-        lookup = (self.lookup_depth, self.lookup_target) if self.lookup_depth.numel() else None
         table = self.sim_table if self.sim_table.numel() else None
-        return replace(base, lookup_fit=lookup, lookup_cache=self._cache, sim_lookup=table)
+        reference = FitReference(
+            self.lookup_depth,
+            self.lookup_target,
+            SimOpticsChoice(table, math.nan, math.nan),
+            lookups=self._cache,
+        )
+        return make_scene(
+            PairedData(depth, sim, sim, background, None, names, names), None, reference
+        )
 
     def _model_foreground(self, depth: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         """Foregrounds (N, 3, S, S) of sim + effects + added noise, rendered in chunks."""
@@ -275,7 +289,7 @@ class CalibratedTranslator(SimTranslator):
         with torch.no_grad():
             for i in range(0, len(depth), self.config.chunk):
                 part = depth[i : i + self.config.chunk].float().cpu().clamp(min=0)
-                image = render(self._base(part, background), effects, generator)
+                image = render(self._scene(part, background), effects, generator)
                 if std is not None and bool((std > 0).any()):
                     noise = torch.randn(image.shape, generator=generator)
                     image = (image + std * noise).clamp(0.0, 255.0)

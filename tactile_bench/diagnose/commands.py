@@ -10,9 +10,14 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tactile_bench.errors import TactileBenchError
+
+if TYPE_CHECKING:  # the parsers load without torch: the types are for reading only
+    from tactile_bench.diagnose.result import Diagnosis
+    from tactile_bench.diagnose.shrink import HowFar
+    from tactile_bench.diagnose.which import WhichResult
 
 # ------------------------------------------------------------------------------ diagnose
 #: a mean squared difference real - sim below the variance of 8-bit rounding (1/12 of a
@@ -20,11 +25,10 @@ from tactile_bench.errors import TactileBenchError
 NO_GAP_MSE = 1.0 / 12.0
 
 
-#: the diagnosis runs thousands of small tensor ops (64 x 64 frames): OpenMP's worker threads
-#: sleeping between them (the CLI's PASSIVE) made ``diagnose --no-downstream`` of 300 pairs
-#: take 116 s against 80 s with the runtime's own spin-then-sleep (None: the environment's
-#: setting, else GNU OpenMP's default) and 100 s on one thread (idle 2-core AVX-512 EPYC)
-FIT_MANY_SMALL_OPS = None
+#: the diagnosis runs thousands of small tensor ops: OpenMP's threads sleeping between them
+#: (the CLI's PASSIVE wait policy) slow it down, so it keeps the environment's policy (None:
+#: leave it alone; timings in docs/results/gap_validation.md)
+KEEP_OMP_WAIT_POLICY = None
 
 
 def _g(value: Any) -> str:
@@ -34,97 +38,113 @@ def _g(value: Any) -> str:
     return f"{value:.4g}"
 
 
-def _first_lines(report: dict[str, Any]) -> list[str]:
+def _first_lines(which: WhichResult) -> list[str]:
     """The background correction and any confusable set: what a reader must see first."""
-    bg = report.get("background")
+    bg = which.background
     if bg:
         lines = [
             f"background: the measured no-contact frame in place of the sim's removes "
-            f"{bg['shrink']:.3f} [{bg['ci_low']:.3f}, {bg['ci_high']:.3f}] of the gap "
+            f"{bg.shrink:.3f} [{bg.ci_low:.3f}, {bg.ci_high:.3f}] of the gap "
             "(data, nothing fitted); effects are ranked on what is left"
         ]
     else:
-        lines = [f"background: {report.get('background_note') or 'no correction'}"]
-    optics = (report.get("which") or {}).get("sim_optics") or {}
+        lines = [f"background: {which.background_note or 'no correction'}"]
+    optics = which.sim_optics
     if optics:
         lines.append(
             f"sim optics for geometry effects: {optics['model']} (MSE on held-in sim images: "
             f"built-in {optics['builtin_mse']}, fitted lookup {optics['lookup_mse']})"
         )
-    for fit in report.get("ranking") or []:
-        if fit.get("confusable_with"):
+    for fit in which.ranking:
+        if fit.confusable_with:
             lines.append(
-                f"confusable: {fit['effect']} ~ {', '.join(fit['confusable_with'])} "
+                f"confusable: {fit.effect} ~ {', '.join(fit.confusable_with)} "
                 "(the held-out pairs cannot tell them apart)"
             )
     return lines
 
 
-def _summary_lines(report: dict[str, Any]) -> list[str]:
+def _ranking_lines(which: WhichResult) -> list[str]:
+    """The greedy selection, row by row, and what it set aside."""
+    lines = ["which effects explain it (greedy order; shrink of the held-out gap, 95% CI):"]
+    for fit in which.ranking:
+        lines.append(
+            f"  {fit.effect:<20} shrink {fit.shrink:.3f} [{fit.ci_low:.3f}, {fit.ci_high:.3f}]"
+            f"  gap {fit.gap_before:.4g} -> {fit.gap_after:.4g}"
+        )
+        if fit.confusable_with:
+            lines.append(
+                f"    not told apart from: {', '.join(fit.confusable_with)} "
+                f"(to separate them: {fit.separate_by})"
+            )
+    if not which.ranking:
+        lines.append("  (no candidate effect shrinks the gap)")
+    if which.set_aside_as_denoising:
+        lines.append(
+            f"  set aside: {', '.join(which.set_aside_as_denoising)} (removes only the sim's "
+            "own noise, which the real frames have less of)"
+        )
+    return lines
+
+
+def _residual_lines(which: WhichResult) -> list[str]:
+    """The unexplained share, the noise it is counted above, and any flag."""
     from tactile_bench.diagnose.stability import warning as stability_warning
 
-    where = report["where"]
+    lines = [f"unexplained share of the held-out gap: {which.unexplained:.3f}"]
+    if which.noise:
+        sides = ", ".join(f"{k.replace('_', ' ')} {max(v):.2g}" for k, v in which.noise.items())
+        lines.append(f"  counted above the pairs' own noise (std, grey levels: {sides})")
+    if which.residual_flagged:
+        lines.append("  note: a large residual remains that no candidate explains")
+    unstable = stability_warning(which.stability)
+    if unstable:
+        lines.append(f"  note: {unstable}")
+    return lines
+
+
+def _how_far_lines(far: HowFar) -> list[str]:
+    """Pixel, distribution and downstream measures before and after the effects."""
+    from tactile_bench.diagnose.shrink import KidScores, Skipped
+
+    b, a = far.pixel_before, far.pixel_after
     lines = [
-        f"diagnosed {report['n_pairs']} pairs ({report['split']['n_fit']} fit / "
-        f"{report['split']['n_held']} held-out) in {report['timing_s']['total']:.1f} s; "
-        f"mean squared error real - sim {where['mse']:.2f}"
+        "how far it shrinks (held-out): "
+        + ", ".join(f"{k} {_g(b[k])} -> {_g(a[k])}" for k in b if k in a)
     ]
-    lines += _first_lines(report)
+    if isinstance(far.distribution, KidScores):
+        kid = far.distribution
+        lines.append(f"  KID {_g(kid.kid_before)} -> {_g(kid.kid_after)}")
+    down = far.downstream
+    if isinstance(down, Skipped):
+        lines.append(f"  downstream: skipped ({down.reason})")
+    else:
+        lines.append(
+            "  downstream accuracy on held-out real: "
+            + ", ".join(f"{k} {_g(v)}" for k, v in down.accuracies.items())
+        )
+    return lines
+
+
+def summary_lines(result: Diagnosis) -> list[str]:
+    """The text summary ``diagnose`` prints."""
+    where = result.where.summary
+    lines = [
+        f"diagnosed {result.n_pairs} pairs ({result.split.n_fit} fit / {result.split.n_held} "
+        f"held-out) in {result.timing_s['total']:.1f} s; mean squared error real - sim "
+        f"{where['mse']:.2f}"
+    ]
+    lines += _first_lines(result.which)
     lines.append("where the gap lies (top part of each axis, share of the squared error):")
     for row in where["dominant"]:
         extra = f", intensity {row['intensity']:.2f}" if row.get("intensity") is not None else ""
         lines.append(f"  {row['axis']:<12} {row['part']:<24} {100 * row['share']:5.1f}%{extra}")
-    lines.append("which effects explain it (greedy order; shrink of the held-out gap, 95% CI):")
-    for fit in report["ranking"] or []:
-        lines.append(
-            f"  {fit['effect']:<20} shrink {fit['shrink']:.3f} "
-            f"[{fit['ci_low']:.3f}, {fit['ci_high']:.3f}]  gap {fit['gap_before']:.4g} -> "
-            f"{fit['gap_after']:.4g}"
-        )
-        if fit.get("confusable_with"):
-            lines.append(
-                f"    not told apart from: {', '.join(fit['confusable_with'])} "
-                f"(to separate them: {fit['separate_by']})"
-            )
-    if not report["ranking"]:
-        lines.append("  (no candidate effect shrinks the gap)")
-    aside = (report.get("which") or {}).get("set_aside_as_denoising") or []
-    if aside:
-        lines.append(
-            f"  set aside: {', '.join(aside)} (removes only the sim's own noise, which the "
-            "real frames have less of)"
-        )
-    lines.append(f"unexplained share of the held-out gap: {report['unexplained']:.3f}")
-    noise = (report.get("which") or {}).get("noise") or {}
-    if noise:
-        sides = ", ".join(f"{k.replace('_', ' ')} {max(v):.2g}" for k, v in noise.items())
-        lines.append(f"  counted above the pairs' own noise (std, grey levels: {sides})")
-    if report.get("residual_flagged"):
-        lines.append("  note: a large residual remains that no candidate explains")
-    unstable = stability_warning(report.get("stability"))
-    if unstable:
-        lines.append(f"  note: {unstable}")
-    far = report.get("how_far") or {}
-    pixel = far.get("pixel") or {}
-    if pixel:
-        b, a = pixel.get("before", {}), pixel.get("after", {})
-        lines.append(
-            "how far it shrinks (held-out): "
-            + ", ".join(f"{k} {_g(b[k])} -> {_g(a[k])}" for k in b if k in a)
-        )
-    dist = far.get("distribution") or {}
-    if "kid_before" in dist:
-        lines.append(f"  KID {_g(dist['kid_before'])} -> {_g(dist.get('kid_after'))}")
-    down = far.get("downstream") or {}
-    if "skipped" in down:
-        lines.append(f"  downstream: skipped ({down['skipped']})")
-    elif down:
-        accuracies = {k: v for k, v in down.items() if k.endswith("accuracy")}
-        lines.append(
-            "  downstream accuracy on held-out real: "
-            + ", ".join(f"{k.removesuffix('_accuracy')} {_g(v)}" for k, v in accuracies.items())
-        )
-    return lines
+    return (
+        lines
+        + _ranking_lines(result.which)
+        + _residual_lines(result.which)
+        + _how_far_lines(result.how_far)
+    )
 
 
 def _cmd_diagnose(ns: argparse.Namespace) -> int:
@@ -159,7 +179,7 @@ def _cmd_diagnose(ns: argparse.Namespace) -> int:
         progress=not ns.no_progress,
         source={"root": str(Path(base).resolve()), "layout": layout},
     )
-    print("\n".join(_summary_lines(report)))
+    print("\n".join(summary_lines(report)))
     out = Path(ns.out)
     print(f"wrote {out / 'report.json'} and {out / 'report.html'}")
     return 0
@@ -320,7 +340,7 @@ def _add_diagnose(subparsers: Any) -> None:
         "diagnosis is validated at; the Tactile-Diffusion layout: 64)",
     )
     diag.add_argument("--no-progress", action="store_true")
-    diag.set_defaults(func=_cmd_diagnose, omp_wait_policy=FIT_MANY_SMALL_OPS)
+    diag.set_defaults(func=_cmd_diagnose, omp_wait_policy=KEEP_OMP_WAIT_POLICY)
 
 
 def _add_export_pairs(subparsers: Any) -> None:
@@ -391,4 +411,4 @@ def _add_validate(subparsers: Any) -> None:
         help="own: the project's renderer; foreign: an independent renderer (default both)",
     )
     val.add_argument("--no-progress", action="store_true")
-    val.set_defaults(func=_cmd_validate, omp_wait_policy=FIT_MANY_SMALL_OPS)
+    val.set_defaults(func=_cmd_validate, omp_wait_policy=KEEP_OMP_WAIT_POLICY)

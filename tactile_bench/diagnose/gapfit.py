@@ -1,16 +1,19 @@
 """The gap measure and the fit of a candidate's parameters to it.
 
-Gap between a candidate sim' and the real image of each pair, grey level^2 (0..255 scale):
+Gap between a candidate sim' and the real image of each pair, grey level^2 (0..255 scale),
+``GAP_METRIC`` in words:
 
-- **structure**: MSE of the images low-passed by a Gaussian of sigma 1 px;
-- **texture**: for two bands (x - G1 x, G1 x - G3 x), the squared difference of the local
-  RMS (``sqrt(G2 band^2)``), averaged over pixels and channels.
+- **structure**: MSE of the images low-passed to about 1 px (2 x 2 area average, then a
+  Gaussian of sigma 0.5 px at half size);
+- **texture**: the squared difference of the local gradient strength along and across its
+  main direction (square roots of the structure tensor's eigenvalues in 4 x 4 px windows),
+  at full size and at half size.
 
 Plain MSE cannot see a stochastic effect: adding camera noise to sim *raises* it. The texture
-term sees noise, texture and blur through their local power, whatever the phase. When sim'
-is stochastic, two draws a, b are rendered and the structure term is ``(La - Lr)(Lb - Lr)``,
-an unbiased estimate of ``(E[La] - Lr)^2``: the fit then matches the mean image instead of
-being penalised for its own randomness.
+term sees noise, texture and blur through their local gradient power, whatever the phase or
+orientation. When sim' is stochastic, two draws a, b are rendered and the structure term is
+``(La - Lr)(Lb - Lr)``, an unbiased estimate of ``(E[La] - Lr)^2``: the fit then matches the
+mean image instead of being penalised for its own randomness.
 """
 
 from __future__ import annotations
@@ -19,18 +22,14 @@ import itertools
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.diagnose.candidates import (
-    CANDIDATES,
-    Base,
-    bake_fixed,
-    get_candidate,
-    render,
-)
+from tactile_bench.diagnose.candidates import CANDIDATES, Candidate, Searched, get_candidate
+from tactile_bench.diagnose.scene import PairScene
+from tactile_bench.diagnose.simulate import bake_fixed, render
+from tactile_bench.effects.base import ParamValue
 from tactile_bench.effects.kernels import gaussian_blur
 
 GAP_METRIC = (
@@ -49,6 +48,8 @@ MAX_GRID_PARAMS = 2  # up to this many gradient-free parameters: a full grid, no
 # many pairs, and the best WHOLE_SHORTLIST of them scored on the Adam pairs
 WHOLE_PAIRS = 16
 WHOLE_SHORTLIST = 5
+#: a point of unit coordinates -> its mean gap
+Loss = Callable[[Mapping[str, ParamValue]], float]
 
 
 def _blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -125,47 +126,47 @@ def rounding_gap(target: Target, seed: int = 0) -> float:
     return float(pair_gap([target.real.float() + noise], target).mean())
 
 
-def _random(effects: Mapping[str, Mapping[str, object]]) -> bool:
+def _random(effects: Mapping[str, Mapping[str, ParamValue]]) -> bool:
     """True when an effect draws randomness or has a per-pair latent (cannot be baked)."""
     return any(CANDIDATES[n].stochastic or CANDIDATES[n].latent_grid for n in effects)
 
 
-def is_stochastic(effects: Mapping[str, Mapping[str, object]]) -> bool:
+def is_stochastic(effects: Mapping[str, Mapping[str, ParamValue]]) -> bool:
     """True when the gap of ``effects`` needs two draws (a latent is searched, not drawn)."""
     return any(CANDIDATES[n].stochastic and not CANDIDATES[n].latent_grid for n in effects)
 
 
-#: a change made to every rendered draw before it is scored: (images, base, draw) -> images
-PostDraw = Callable[[torch.Tensor, Base, int], torch.Tensor]
+#: a change made to every rendered draw before it is scored: (images, scene, draw) -> images
+PostDraw = Callable[[torch.Tensor, PairScene, int], torch.Tensor]
 
 
 def evaluate(
-    base: Base,
+    scene: PairScene,
     target: Target,
-    effects: Mapping[str, Mapping[str, object]],
+    effects: Mapping[str, Mapping[str, ParamValue]],
     seed: int,
     post: PostDraw | None = None,
 ) -> torch.Tensor:
-    """Per-pair gap (N,) of ``effects`` on ``base``: two seeded draws when stochastic, and
+    """Per-pair gap (N,) of ``effects`` on ``scene``: two seeded draws when stochastic, and
     for an effect with a per-pair latent the best value of its grid, pair by pair."""
     for name in effects:
         grid = CANDIDATES[name].latent_grid
-        if grid and name not in base.latent:
-            gaps = [evaluate(base.with_latent(name, v), target, effects, seed, post) for v in grid]
+        if grid and name not in scene.latent:
+            gaps = [evaluate(scene.with_latent(name, v), target, effects, seed, post) for v in grid]
             return torch.stack(gaps).min(0).values
     draws = 2 if is_stochastic(effects) else 1
     images = [
-        render(base, effects, torch.Generator().manual_seed(seed + 7919 * k)) for k in range(draws)
+        render(scene, effects, torch.Generator().manual_seed(seed + 7919 * k)) for k in range(draws)
     ]
     if post is not None:
-        images = [post(image, base, k) for k, image in enumerate(images)]
+        images = [post(image, scene, k) for k, image in enumerate(images)]
     return pair_gap(images, target)
 
 
 def model_gap(
-    base: Base,
+    scene: PairScene,
     target: Target,
-    effects: Mapping[str, Mapping[str, object]],
+    effects: Mapping[str, Mapping[str, ParamValue]],
     seed: int = 0,
     chunk: int = 256,
     post: PostDraw | None = None,
@@ -174,9 +175,9 @@ def model_gap(
     (``post``: applied to each rendered draw before scoring)."""
     out = []
     with torch.no_grad():
-        for i in range(0, len(base), chunk):
-            idx = torch.arange(i, min(i + chunk, len(base)))
-            out.append(evaluate(base.subset(idx), target.subset(idx), effects, seed + i, post))
+        for i in range(0, len(scene), chunk):
+            idx = torch.arange(i, min(i + chunk, len(scene)))
+            out.append(evaluate(scene.subset(idx), target.subset(idx), effects, seed + i, post))
     return torch.cat(out) if out else torch.zeros(0)
 
 
@@ -190,9 +191,49 @@ class FitBudget:
     lr: float = 0.06
 
 
+class _Objective:
+    """The mean gap of one candidate at a point (unit coordinates) on a fixed subset of the
+    fit pairs, the ``prior`` effects in place. The sweeps revisit points (each starts from
+    its best so far) and the gap is deterministic, so a point of floats is computed once."""
+
+    def __init__(
+        self,
+        cand: Candidate,
+        scene: PairScene,
+        target: Target,
+        prior: Mapping[str, Mapping[str, float]],
+        seed: int,
+    ) -> None:
+        self.cand, self.scene, self.target, self.prior, self.seed = (
+            cand,
+            scene,
+            target,
+            prior,
+            seed,
+        )
+        self._seen: dict[tuple[float, ...], torch.Tensor] = {}
+
+    def __call__(self, u: Mapping[str, ParamValue]) -> torch.Tensor:
+        searched = self.cand.searched
+        point = None
+        if not any(isinstance(u[s.name], torch.Tensor) for s in searched):
+            point = tuple(float(u[s.name]) for s in searched)
+            if point in self._seen:
+                return self._seen[point]
+        params = {s.name: s.from_unit(u[s.name]) for s in searched}
+        effects = {**self.prior, self.cand.name: params}
+        value = evaluate(self.scene, self.target, effects, self.seed).mean()
+        if point is not None:
+            self._seen[point] = value
+        return value
+
+    def number(self, u: Mapping[str, ParamValue]) -> float:
+        return float(self(u))
+
+
 def fit_candidate(
     name: str,
-    base: Base,
+    scene: PairScene,
     target: Target,
     prior: Mapping[str, Mapping[str, float]] | None = None,
     seed: int = 0,
@@ -201,81 +242,62 @@ def fit_candidate(
     """Parameters of candidate ``name`` that minimise the gap on (a subsample of) the fit
     pairs, with ``prior`` effects already in place (held fixed).
 
-    Coordinate sweep of every parameter over its range (from a neutral-side start, never a
-    default) -> Adam on the differentiable ones in unit coordinates, projected onto the box ->
-    a finer sweep of the non-differentiable ones -> Adam again if that moved anything.
+    Whole-valued parameters tried value by value -> the other gradient-free ones on a grid
+    or a coordinate sweep -> a coarse sweep of the differentiable ones (to leave flat or
+    local minima) -> Adam on those in unit coordinates, projected onto the box -> a pattern
+    search of the gradient-free ones, and Adam again if that moved anything. Every search
+    starts on the neutral side, never at a default.
     """
     cand = get_candidate(name)
     budget = budget or FitBudget()
-    base, prior = _bake_earlier(cand.acts_on, base, dict(prior or {}))
-    gen = torch.Generator().manual_seed(seed)
-    order = torch.randperm(len(base), generator=gen)
-    sweep_idx, adam_idx = order[: budget.sweep_pairs], order[: budget.adam_pairs]
-    u = {s.name: s.to_unit(s.start) for s in cand.searched}
-    subsets = {}
-    seen: dict[tuple[int, tuple[float, ...]], torch.Tensor] = {}
+    scene, prior = _bake_earlier(cand, scene, dict(prior or {}))
+    order = torch.randperm(len(scene), generator=torch.Generator().manual_seed(seed))
 
-    def loss(values: Mapping[str, object], idx: torch.Tensor) -> torch.Tensor:
-        # the sweeps revisit points (each sweep starts from its best so far, a level can be
-        # the current value): the gap is deterministic, so a float point is computed once
-        point = None
-        if not any(isinstance(values[s.name], torch.Tensor) for s in cand.searched):
-            point = (id(idx), tuple(float(values[s.name]) for s in cand.searched))
-            if point in seen:
-                return seen[point]
-        params = {s.name: s.from_unit(values[s.name]) for s in cand.searched}
-        key = id(idx)
-        if key not in subsets:
-            subsets[key] = (base.subset(idx), target.subset(idx))
-        sub, tgt = subsets[key]
-        value = evaluate(sub, tgt, {**prior, name: params}, seed).mean()
-        if point is not None:
-            seen[point] = value
-        return value
+    def on(n_pairs: int) -> _Objective:
+        idx = order[:n_pairs]
+        return _Objective(cand, scene.subset(idx), target.subset(idx), prior, seed)
 
+    sweep, adam = on(budget.sweep_pairs), on(budget.adam_pairs)
+    u: dict[str, ParamValue] = {s.name: s.to_unit(s.start) for s in cand.searched}
     diff = [s.name for s in cand.searched if s.differentiable]
     whole = [s for s in cand.searched if s.integer and s.high - s.low <= MAX_WHOLE_VALUES]
     other = [s.name for s in cand.searched if not s.differentiable and s not in whole]
     with torch.no_grad():
-        whole_idx = order[: min(WHOLE_PAIRS, budget.sweep_pairs)]
-        _whole_values(
-            u, whole, lambda v: float(loss(v, whole_idx)), lambda v: float(loss(v, adam_idx))
-        )
-        if len(other) <= MAX_GRID_PARAMS:
-            _grid(u, other, lambda v: float(loss(v, sweep_idx)))
-        else:
-            _sweep(u, other, SWEEP_LEVELS, lambda v: float(loss(v, sweep_idx)))
-        # only to leave flat or local minima
-        _sweep(u, diff, DIFF_SWEEP_LEVELS, lambda v: float(loss(v, sweep_idx)))
-    _adam(u, diff, lambda v: loss(v, adam_idx), budget)
-    if other:
-        # few searched values: refine on more pairs; many: on the sweep's (cost)
-        refine_idx = adam_idx if len(other) <= 2 else sweep_idx
-        with torch.no_grad():
-            moved = _refine(u, other, lambda v: float(loss(v, refine_idx)))
-        if moved and diff:
-            _adam(u, diff, lambda v: loss(v, adam_idx), budget, steps=budget.adam_steps // 2)
+        _whole_values(u, whole, on(min(WHOLE_PAIRS, budget.sweep_pairs)).number, adam.number)
+        _search_gradient_free(u, other, sweep.number)
+        _sweep(u, diff, DIFF_SWEEP_LEVELS, sweep.number)
+    _adam(u, diff, adam, budget)
+    _refine(u, other, diff, sweep if len(other) > 2 else adam, adam, budget)
     return {s.name: s.report(float(u[s.name])) for s in cand.searched}
 
 
+def _search_gradient_free(u: dict[str, ParamValue], names: list[str], loss_fn: Loss) -> None:
+    """Few gradient-free parameters: a full grid (coupled ones, such as a gel's spread and
+    the core it holds, stall a sweep one coordinate at a time); many: a sweep."""
+    if len(names) <= MAX_GRID_PARAMS:
+        _grid(u, names, loss_fn)
+    else:
+        _sweep(u, names, SWEEP_LEVELS, loss_fn)
+
+
 def _bake_earlier(
-    acts_on: str, base: Base, prior: dict[str, Mapping[str, float]]
-) -> tuple[Base, dict[str, Mapping[str, float]]]:
-    """``base`` with the fixed pose and geometry effects of ``prior`` that act before
-    ``acts_on`` applied once, and the rest of ``prior``: not applied at every step (a
-    codec's quality search renders hundreds of times)."""
-    earlier = {"pose"} if acts_on == "geometry" else {"pose", "geometry"}
+    cand: Candidate, scene: PairScene, prior: dict[str, Mapping[str, float]]
+) -> tuple[PairScene, dict[str, Mapping[str, float]]]:
+    """``scene`` with the fixed pose and geometry effects of ``prior`` that act before
+    ``cand`` applied once, and the rest of ``prior``: not applied at every step (a codec's
+    quality search renders hundreds of times)."""
+    earlier = {"pose"} if cand.acts_on == "geometry" else {"pose", "geometry"}
     baked = {n: p for n, p in prior.items() if CANDIDATES[n].acts_on in earlier}
-    if baked and acts_on != "pose" and not _random(baked):
-        return bake_fixed(base, baked), {n: p for n, p in prior.items() if n not in baked}
-    return base, prior
+    if baked and cand.acts_on != "pose" and not _random(baked):
+        return bake_fixed(scene, baked), {n: p for n, p in prior.items() if n not in baked}
+    return scene, prior
 
 
 def _sweep(
-    u: dict[str, object],
+    u: dict[str, ParamValue],
     names: list[str],
     levels: tuple[float, ...],
-    loss_fn: Callable[[dict[str, object]], float],
+    loss_fn: Loss,
 ) -> bool:
     """Coordinate sweep: each of ``names`` in turn moved to its best of ``levels``."""
     best, moved = loss_fn(u), False
@@ -288,10 +310,10 @@ def _sweep(
 
 
 def _whole_values(
-    u: dict[str, object],
-    whole: list[Any],
-    quick_loss: Callable[[dict[str, object]], float],
-    loss_on_more: Callable[[dict[str, object]], float],
+    u: dict[str, ParamValue],
+    whole: list[Searched],
+    quick_loss: Loss,
+    loss_on_more: Loss,
 ) -> None:
     """Integer parameters (``whole``, searched specs) set to their best combination: every
     combination scored by ``quick_loss`` (``WHOLE_PAIRS`` pairs), the best
@@ -313,7 +335,7 @@ def _whole_values(
         u.update(points[best[1]])
 
 
-def _grid(u: dict[str, object], names: list[str], loss_fn: Any) -> None:
+def _grid(u: dict[str, ParamValue], names: list[str], loss_fn: Loss) -> None:
     """``names`` set to their best point on the full grid of ``SWEEP_LEVELS`` (coupled
     parameters, such as a gel's spread and the core it holds, have no good value of one at
     the other's start: a sweep one coordinate at a time stalls there)."""
@@ -329,25 +351,39 @@ def _grid(u: dict[str, object], names: list[str], loss_fn: Any) -> None:
     u.update(best[1])
 
 
-def _refine(u: dict[str, object], names: list[str], loss_fn: object, rounds: int = 2) -> bool:
-    """Pattern search around the sweep's best: +-half the level step, halved each round."""
-    best, moved = loss_fn(u), False
-    step = 0.5 * (SWEEP_LEVELS[1] - SWEEP_LEVELS[0])
-    for _ in range(rounds):
-        for n in names:
-            for sign in (-1.0, 1.0):
-                level = min(max(float(u[n]) + sign * step, 0.0), 1.0)
-                value = loss_fn({**u, n: level})
-                if value < best - 1e-9:
-                    best, u[n], moved = value, level, True
-        step /= 2
-    return moved
+def _refine(
+    u: dict[str, ParamValue],
+    names: list[str],
+    diff: list[str],
+    loss_fn: _Objective,
+    adam_loss: _Objective,
+    budget: FitBudget,
+    rounds: int = 2,
+) -> None:
+    """Pattern search of ``names`` around the sweep's best (+-half the level step, halved
+    each round); if it moved anything, Adam again on ``diff`` for half the steps."""
+    if not names:
+        return
+    moved = False
+    with torch.no_grad():
+        best = loss_fn.number(u)
+        step = 0.5 * (SWEEP_LEVELS[1] - SWEEP_LEVELS[0])
+        for _ in range(rounds):
+            for n in names:
+                for sign in (-1.0, 1.0):
+                    level = min(max(float(u[n]) + sign * step, 0.0), 1.0)
+                    value = loss_fn.number({**u, n: level})
+                    if value < best - 1e-9:
+                        best, u[n], moved = value, level, True
+            step /= 2
+    if moved and diff:
+        _adam(u, diff, adam_loss, budget, steps=budget.adam_steps // 2)
 
 
 def _adam(
-    u: dict[str, object],
+    u: dict[str, ParamValue],
     names: list[str],
-    loss_fn: object,
+    loss_fn: Callable[[Mapping[str, ParamValue]], torch.Tensor],
     budget: FitBudget,
     steps: int | None = None,
 ) -> None:
@@ -378,7 +414,7 @@ def _adam(
 
 def fit_jointly(
     effects: Mapping[str, Mapping[str, float]],
-    base: Base,
+    scene: PairScene,
     target: Target,
     seed: int = 0,
     budget: FitBudget | None = None,
@@ -389,13 +425,13 @@ def fit_jointly(
     budget = budget or FitBudget()
     searched = {n: {s.name: s for s in get_candidate(n).searched} for n in effects}
     keys = [(n, k) for n in effects for k, s in searched[n].items() if s.differentiable]
-    u: dict[str, object] = {
+    u: dict[str, ParamValue] = {
         f"{n}/{k}": searched[n][k].to_unit(float(effects[n][k])) for n, k in keys
     }
-    idx = torch.randperm(len(base), generator=torch.Generator().manual_seed(seed))
-    sub, tgt = base.subset(idx[: budget.adam_pairs]), target.subset(idx[: budget.adam_pairs])
+    idx = torch.randperm(len(scene), generator=torch.Generator().manual_seed(seed))
+    sub, tgt = scene.subset(idx[: budget.adam_pairs]), target.subset(idx[: budget.adam_pairs])
 
-    def loss(values: Mapping[str, object]) -> torch.Tensor:
+    def loss(values: Mapping[str, ParamValue]) -> torch.Tensor:
         params = {n: dict(p) for n, p in effects.items()}
         for n, k in keys:
             params[n][k] = searched[n][k].from_unit(values[f"{n}/{k}"])

@@ -8,7 +8,7 @@ the sim's alike (a noisy renderer, as TACTO's with its noise on). A no-contact f
 a single capture carries a frozen draw of the same noise into every candidate built on it;
 how much, is bounded by the data (see ``frozen_variance``). A simulator that reproduced the
 real sensor exactly would still leave the gap these noises make against each other; the
-diagnosis subtracts it as a floor (``which._result``) instead of calling it unexplained.
+diagnosis subtracts it as a floor (``which``) instead of calling it unexplained.
 
 Assumptions, stated because the floor rests on them: the noise is additive, independent from
 frame to frame and from pixel to pixel (the floor is drawn as white Gaussian noise of the
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.diagnose.candidates import Base
 from tactile_bench.diagnose.gapfit import PostDraw, Target, pair_gap
+from tactile_bench.diagnose.scene import PairScene
 from tactile_bench.metrics.noise import MIN_FRAMES, clipped_std, estimate_pixel_noise
 
 #: pixels within this share of the image size of any contact are left out: a gel's spread,
@@ -102,8 +102,8 @@ class FrameNoise:
         image formation. A draw too small to measure is left as it is.
         """
 
-        def post(images: torch.Tensor, base: Base, draw: int) -> torch.Tensor:
-            have = estimate_pixel_noise(images, contact_free(base.depth))
+        def post(images: torch.Tensor, scene: PairScene, draw: int) -> torch.Tensor:
+            have = estimate_pixel_noise(images, contact_free(scene.depth))
             if have is None:
                 return images
             extra = (self.sim - have.square()).clamp(min=0.0).sqrt()

@@ -22,6 +22,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 import tactile_bench.report.figures  # noqa: F401  (selects the Agg backend)
+from tactile_bench.diagnose.ranking import EffectFit
+from tactile_bench.diagnose.result import Diagnosis
 from tactile_bench.diagnose.stability import warning as stability_warning
 from tactile_bench.diagnose.where import WhereResult
 from tactile_bench.io import atomic_write_json, atomic_write_text
@@ -141,21 +143,15 @@ def spectrum_figure(rows: Sequence[tuple[str, WhereResult]]) -> Figure:
     return fig
 
 
-def _num(value: Any, default: float = 0.0) -> float:
-    return default if value is None else float(value)
-
-
-def shrink_figure(
-    singles: Sequence[Mapping[str, Any]], ranking: Sequence[Mapping[str, Any]]
-) -> Figure:
+def shrink_figure(singles: Sequence[EffectFit], ranking: Sequence[EffectFit]) -> Figure:
     """Each candidate alone (shrink with 95% CI) and the greedy selection's remaining gap."""
     fig = Figure(figsize=(12, 0.32 * max(len(singles), len(ranking), 4) + 1.4))
     left, right = fig.subplots(1, 2)
     rows = list(singles)[::-1]
     y = np.arange(len(rows))
-    values = np.array([_num(r.get("shrink")) for r in rows])
-    lo = np.array([_num(r.get("ci_low"), v) for r, v in zip(rows, values, strict=True)])
-    hi = np.array([_num(r.get("ci_high"), v) for r, v in zip(rows, values, strict=True)])
+    values = np.array([_finite(r.shrink, 0.0) for r in rows])
+    lo = np.array([_finite(r.ci_low, v) for r, v in zip(rows, values, strict=True)])
+    hi = np.array([_finite(r.ci_high, v) for r, v in zip(rows, values, strict=True)])
     left.barh(
         y,
         values,
@@ -163,14 +159,14 @@ def shrink_figure(
         xerr=np.stack([np.maximum(values - lo, 0), np.maximum(hi - values, 0)]),
         capsize=3,
     )
-    left.set_yticks(y, [r["effect"] for r in rows], fontsize=8)
+    left.set_yticks(y, [r.effect for r in rows], fontsize=8)
     left.axvline(0, color="black", lw=0.8)
     left.set_xlabel("shrink of the held-out gap (95% bootstrap CI)")
     left.set_title("each candidate effect alone", fontsize=10)
     left.grid(axis="x", alpha=0.3)
     if ranking:
-        steps = ["sim"] + [f"+ {r['effect']}" for r in ranking]
-        gaps = [ranking[0]["gap_before"]] + [r["gap_after"] for r in ranking]
+        steps = ["sim"] + [f"+ {r.effect}" for r in ranking]
+        gaps = [ranking[0].gap_before] + [r.gap_after for r in ranking]
         right.bar(range(len(steps)), gaps, color="tab:green")
         right.set_xticks(range(len(steps)), steps, rotation=30, ha="right", fontsize=8)
         right.set_ylabel("held-out gap")
@@ -181,6 +177,10 @@ def shrink_figure(
         right.set_axis_off()
     fig.tight_layout()
     return fig
+
+
+def _finite(value: float, default: float) -> float:
+    return value if math.isfinite(value) else default
 
 
 def samples_figure(samples: Mapping[str, torch.Tensor], row_labels: Sequence[str]) -> Figure:
@@ -256,7 +256,7 @@ font-size:13px;text-align:left}th{background:#f2f2f2}img{max-width:100%}
 .warn{background:#fff3cd;border:1px solid #e0c36b;padding:.6em}h2{margin-top:1.6em}"""
 
 
-def render_html(report: Mapping[str, Any], figures: Mapping[str, str]) -> str:
+def render_html(result: Diagnosis, figures: Mapping[str, str]) -> str:
     """The report page; ``figures`` maps names to base64 PNGs."""
 
     def img(name: str) -> str:
@@ -266,22 +266,22 @@ def render_html(report: Mapping[str, Any], figures: Mapping[str, str]) -> str:
             else ""
         )
 
-    where = report["where"]
+    where, which = result.where.summary, result.which
     parts = [
-        f"<h1>Sim-to-real gap diagnosis</h1><p>{report['n_pairs']} pairs of {where['size']} x "
-        f"{where['size']} px from <code>{_fmt(report['input'].get('root'))}</code> "
-        f"(layout {_fmt(report['input'].get('layout'))}, sha256 "
-        f"{_fmt(str(report['input'].get('hash'))[:16])}...); fit/held-out split "
-        f"{report['split']['n_fit']}/{report['split']['n_held']} stratified by label. "
+        f"<h1>Sim-to-real gap diagnosis</h1><p>{result.n_pairs} pairs of {where['size']} x "
+        f"{where['size']} px from <code>{_fmt(result.input.get('root'))}</code> "
+        f"(layout {_fmt(result.input.get('layout'))}, sha256 "
+        f"{_fmt(str(result.input.get('hash'))[:16])}...); fit/held-out split "
+        f"{result.split.n_fit}/{result.split.n_held} stratified by label. "
         f"Mean squared error real - sim: {where['mse']:.2f} (0-255 scale).</p>"
     ]
-    if report.get("residual_flagged"):
+    if which.residual_flagged:
         parts.append(
-            f'<p class="warn">A large part of the gap ({_fmt(report.get("unexplained"))} of the '
+            f'<p class="warn">A large part of the gap ({_fmt(which.unexplained)} of the '
             "held-out gap) is left after the selected effects and no candidate explains it: "
             "an effect outside the candidate list is likely at work.</p>"
         )
-    unstable = stability_warning(report.get("stability"))
+    unstable = stability_warning(which.stability)
     if unstable:
         parts.append(f'<p class="warn">{html.escape(unstable[0].upper() + unstable[1:])}.</p>')
     parts.append("<h2>1. Where the gap lies</h2>")
@@ -294,34 +294,29 @@ def render_html(report: Mapping[str, Any], figures: Mapping[str, str]) -> str:
             if rows and c in rows[0]
         ]
         parts.append(f"<h3>by {html.escape(axis)}</h3>" + _table(rows, cols))
-    parts.append(
-        f"<h2>2. Which effect causes it</h2><p>gap measure: {_fmt(report.get('gap_metric'))}</p>"
-    )
+    parts.append(f"<h2>2. Which effect causes it</h2><p>gap measure: {_fmt(which.gap_metric)}</p>")
     cols = ["effect", "params", "gap_before", "gap_after", "shrink", "ci_low", "ci_high"]
-    first = [report["background"]] if report.get("background") else []
+    first = [which.background] if which.background else []
     parts.append(
-        f"<p>background: {_fmt(report.get('background_note'))}</p>"
+        f"<p>background: {_fmt(which.background_note)}</p>"
         "<h3>selected (first line: the measured background; then greedy forward selection on "
-        "what it leaves)</h3>" + _table(first + list(report["ranking"]), cols)
+        "what it leaves)</h3>" + _table([r.to_dict() for r in first + which.ranking], cols)
     )
-    parts.append(f"<p>unexplained share of the held-out gap: {_fmt(report.get('unexplained'))}</p>")
-    parts.append(
-        "<h3>every candidate alone</h3>" + _table(report["singles"], cols) + img("shrinks")
-    )
+    parts.append(f"<p>unexplained share of the held-out gap: {_fmt(which.unexplained)}</p>")
+    singles = [r.to_dict() for r in which.singles]
+    parts.append("<h3>every candidate alone</h3>" + _table(singles, cols) + img("shrinks"))
     parts.append("<h2>3. How far it shrinks</h2>")
-    parts.append(_table(_flatten(report.get("how_far") or {}), ["measure", "value"]))
-    held = report.get("where_held")
-    if held:
+    parts.append(_table(_flatten(result.how_far.to_dict()), ["measure", "value"]))
+    if result.where_held is not None:
+        before, after = (w.summary for w in result.where_held)
         parts.append(
             f"<h3>where the residual lies (held-out pairs)</h3><p>mean squared error "
-            f"{held['before']['mse']:.2f} before, {held['after']['mse']:.2f} after the selected "
+            f"{before['mse']:.2f} before, {after['mse']:.2f} after the selected "
             "effects; the top part of each axis after them:</p>"
         )
-        parts.append(_table(held["after"]["dominant"], ["axis", "part", "share", "intensity"]))
+        parts.append(_table(after["dominant"], ["axis", "part", "share", "intensity"]))
     parts.append(img("residual_maps") + img("samples"))
-    parts.append(
-        "<h2>Timing</h2>" + _table(_flatten(report.get("timing_s") or {}), ["measure", "value"])
-    )
+    parts.append("<h2>Timing</h2>" + _table(_flatten(result.timing_s), ["measure", "value"]))
     body = "\n".join(parts)
     head = f'<meta charset="utf-8"><title>gap diagnosis</title><style>{_CSS}</style>'
     return f"<!doctype html><html><head>{head}</head><body>{body}</body></html>\n"
@@ -329,26 +324,20 @@ def render_html(report: Mapping[str, Any], figures: Mapping[str, str]) -> str:
 
 def write_report(
     out_dir: str | Path,
-    report: Mapping[str, Any],
-    where: WhereResult,
-    held: tuple[WhereResult, WhereResult] | None,
+    result: Diagnosis,
     samples: Mapping[str, torch.Tensor] | None,
     sample_labels: Sequence[str] = (),
 ) -> dict[str, Path]:
-    """Write ``report.json`` and ``report.html`` (figures inlined) into ``out_dir``.
-
-    ``held`` is the "where" analysis of the held-out pairs before and after the selected
-    effects (None when none was selected).
-    """
+    """Write ``report.json`` and ``report.html`` (figures inlined) into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    report = jsonable(report)
+    where, held = result.where, result.where_held
     figures = {
         "error_maps": png_base64(
             error_maps_figure([("all pairs", where)], "per-pixel error, sim vs real (0-255)")
         ),
         "shares": png_base64(shares_figure(where)),
-        "shrinks": png_base64(shrink_figure(report["singles"], report["ranking"])),
+        "shrinks": png_base64(shrink_figure(result.which.singles, result.which.ranking)),
     }
     if held is not None:
         rows = [("sim (held-out)", held[0]), ("sim + effects (held-out)", held[1])]
@@ -360,6 +349,6 @@ def write_report(
         figures["spectrum"] = png_base64(spectrum_figure([("sim", where)]))
     if samples is not None and len(sample_labels):
         figures["samples"] = png_base64(samples_figure(samples, sample_labels))
-    json_path = atomic_write_json(out / "report.json", report)
-    html_path = atomic_write_text(out / "report.html", render_html(report, figures))
+    json_path = atomic_write_json(out / "report.json", jsonable(result.to_dict()))
+    html_path = atomic_write_text(out / "report.html", render_html(result, figures))
     return {"json": json_path, "html": html_path}

@@ -7,20 +7,23 @@ writes ``report.json`` and ``report.html``. It reads only the paired data.
 
 from __future__ import annotations
 
-import importlib
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-import tactile_bench
 from tactile_bench.diagnose.paired import PairedData, data_hash
 from tactile_bench.diagnose.report import jsonable, write_report
-from tactile_bench.diagnose.where import analyse_where
+from tactile_bench.diagnose.result import Diagnosis, Sample, Split
+from tactile_bench.diagnose.shrink import HowFar, how_far
+from tactile_bench.diagnose.simulate import apply_effects
+from tactile_bench.diagnose.where import WhereResult, analyse_where
+from tactile_bench.diagnose.which import WhichResult, explain_gap
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json
 
@@ -96,77 +99,30 @@ def check_candidates(names: Sequence[str] | None, key: str = "--candidates") -> 
         raise TactileBenchError(f"{key}: give at least one candidate effect")
 
 
-def selected_effects(which: Any) -> dict[str, dict[str, float]]:
+def selected_effects(which: WhichResult) -> dict[str, dict[str, float]]:
     """The selected effects' parameters: the final (e.g. jointly refitted) set when the
     "which" step reports one, else each ranking row's own fit."""
-    final = getattr(which, "selected_params", None)
-    if final:
-        return {name: dict(params) for name, params in final.items()}
+    if which.selected_params:
+        return {name: dict(params) for name, params in which.selected_params.items()}
     return {fit.effect: dict(fit.params) for fit in which.ranking}
 
 
-def _where_before_after(held: PairedData, after: torch.Tensor) -> tuple[Any, Any]:
+@dataclass(frozen=True)
+class Steps:
+    """The "which" and "how far" steps and the renderer of fitted effects: a seam where a
+    test puts stand-ins."""
+
+    explain_gap: Callable[..., WhichResult] = explain_gap
+    how_far: Callable[..., HowFar] = how_far
+    apply_effects: Callable[..., torch.Tensor] = apply_effects
+
+
+def _where_before_after(held: PairedData, after: torch.Tensor) -> tuple[WhereResult, WhereResult]:
     """The "where" analysis of the held-out pairs with plain sim, then with ``after``."""
     held_after = PairedData(
         held.depth, after, held.real, held.background, None, held.labels, held.names
     )
     return analyse_where(held), analyse_where(held_after)
-
-
-def _report(
-    data: PairedData,
-    which: Any,
-    where: Any,
-    held_where: tuple[Any, Any] | None,
-    far: dict[str, Any],
-    samples_idx: list[int],
-    source: dict[str, Any] | None,
-) -> dict[str, Any]:
-    """report.json's content (all but ``split`` and ``timing_s``): every step's numbers."""
-    which_dict = which.to_dict()
-    report: dict[str, Any] = {
-        "version": tactile_bench.__version__,
-        "n_pairs": len(data),
-        "size": data.size,
-        "input": {**(source or {}), "hash": data_hash(data)},
-        "split": None,  # filled by the caller, which made the split
-        "where": where.summary,
-        "where_held": None
-        if held_where is None
-        else {"before": held_where[0].summary, "after": held_where[1].summary},
-        "gap_metric": which_dict.get("gap_metric", getattr(which, "gap_metric", None)),
-        "background": which_dict.get("background"),
-        "background_note": which_dict.get("background_note", ""),
-        "ranking": [f.to_dict() for f in which.ranking],
-        "singles": [f.to_dict() for f in which.singles],
-        "unexplained": which.unexplained,
-        "residual_flagged": which.residual_flagged,
-        "stability": which_dict.get("stability"),
-        "flagged": which.flagged,
-        "which": {  # anything else the "which" step reports
-            k: v
-            for k, v in which_dict.items()
-            if k
-            not in (
-                "ranking",
-                "singles",
-                "unexplained",
-                "residual_flagged",
-                "stability",
-                "unstable",
-                "flagged",
-                "gap_metric",
-                "background",
-                "background_note",
-            )
-        },
-        "how_far": far,
-        "downstream": far.get("downstream"),
-        "samples": [
-            {"index": i, "label": data.labels[i], "name": data.names[i]} for i in samples_idx
-        ],
-    }
-    return report
 
 
 def diagnose(
@@ -178,14 +134,13 @@ def diagnose(
     fit_fraction: float = 0.5,
     progress: bool = True,
     source: dict[str, Any] | None = None,
-) -> dict[str, Any]:
-    """Run the diagnosis on ``data`` and write ``out_dir/report.{json,html}``; returns the report.
+    steps: Steps = Steps(),
+) -> Diagnosis:
+    """Run the diagnosis on ``data`` and write ``out_dir/report.{json,html}``.
 
     ``source`` describes the input for the report (``root``, ``layout``); the content hash
     of the pairs is added here.
     """
-    which_mod = importlib.import_module("tactile_bench.diagnose.which")
-    shrink_mod = importlib.import_module("tactile_bench.diagnose.shrink")
     timing: dict[str, float] = {}
     start = time.perf_counter()
     fit_idx, held_idx = stratified_split(data.labels, fit_fraction, seed)
@@ -196,7 +151,7 @@ def diagnose(
     log.info("where: %.1f s; mean squared error %.2f", timing["where"], where.summary["mse"])
 
     t = time.perf_counter()
-    which = which_mod.explain_gap(
+    which = steps.explain_gap(
         data, fit_idx, held_idx, candidates=candidates, seed=seed, progress=progress
     )
     timing["which"] = time.perf_counter() - t
@@ -204,7 +159,7 @@ def diagnose(
     log.info("which: %.1f s; selected %s", timing["which"], list(effects) or "nothing")
 
     t = time.perf_counter()
-    far = shrink_mod.how_far(
+    far = steps.how_far(
         data, fit_idx, held_idx, effects, downstream=downstream, seed=seed, progress=progress
     )
     timing["how_far"] = time.perf_counter() - t
@@ -212,31 +167,33 @@ def diagnose(
     t = time.perf_counter()
     held_where = None
     if effects:
-        after = which_mod.apply_effects(data, effects, held_idx, seed, fit_idx)
+        after = steps.apply_effects(data, effects, held_idx, seed, fit_idx)
         held_where = _where_before_after(data.subset(held_idx), after)
     samples_idx = pick_samples(data, held_idx, seed=seed)
     sample_images = {
         "sim": data.sim[samples_idx],
         "real": data.real[samples_idx],
-        "after": which_mod.apply_effects(data, effects, torch.tensor(samples_idx), seed, fit_idx)
+        "after": steps.apply_effects(data, effects, torch.tensor(samples_idx), seed, fit_idx)
         if effects
         else data.sim[samples_idx],
     }
     row_labels = [f"{data.labels[i] or '-'} / {data.names[i]}" for i in samples_idx]
-
-    report = _report(data, which, where, held_where, far, samples_idx, source)
-    report["split"] = {
-        "n_fit": len(fit_idx),
-        "n_held": len(held_idx),
-        "fit_fraction": fit_fraction,
-        "seed": seed,
-        "stratified_by": "label",
-    }
+    result = Diagnosis(
+        n_pairs=len(data),
+        size=data.size,
+        input={**(source or {}), "hash": data_hash(data)},
+        split=Split(len(fit_idx), len(held_idx), fit_fraction, seed),
+        where=where,
+        where_held=held_where,
+        which=which,
+        how_far=far,
+        samples=[Sample(i, data.labels[i], data.names[i]) for i in samples_idx],
+        timing_s=timing,
+    )
     timing["samples"] = time.perf_counter() - t
     t = time.perf_counter()
-    report["timing_s"] = timing
-    paths = write_report(out_dir, report, where, held_where, sample_images, row_labels)
+    paths = write_report(out_dir, result, sample_images, row_labels)
     timing["report"] = time.perf_counter() - t
     timing["total"] = time.perf_counter() - start
-    atomic_write_json(paths["json"], jsonable(report))  # again, now with the report's own time
-    return report
+    atomic_write_json(paths["json"], jsonable(result.to_dict()))  # now with the report's time
+    return result

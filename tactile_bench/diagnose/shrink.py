@@ -16,8 +16,7 @@ of the no-contact frame, real over the measured one.
 
 Pixel noise: zero-mean noise never lowers a paired gap, so the selection never adds camera
 noise, and a sim (+ effects) that is cleaner than the real frames trains a classifier that
-reads noisy frames at chance (braille, 150 pairs: sim + effects 6% -> 25% once matched). Each
-training set's per-channel noise is estimated frame to frame
+reads noisy frames near chance (docs/results/diagnosis_settings.md). Each training set's per-channel noise is estimated frame to frame
 (``metrics.estimate_pixel_noise``, as the diffusion translator does) and so is that of the
 fit split's real frames; a set cleaner than real gets white Gaussian noise up to the real level, in
 ``NOISE_COPIES`` seeded copies. Estimated from the paired data only; reported under
@@ -30,31 +29,99 @@ import logging
 import math
 import tempfile
 from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
 
 from tactile_bench.data.pixels import image_to_foreground
-from tactile_bench.diagnose.candidates import make_base, render_background
 from tactile_bench.diagnose.paired import PairedData
-from tactile_bench.diagnose.which import apply_effects
+from tactile_bench.diagnose.scene import fit_reference, make_scene
+from tactile_bench.diagnose.simulate import apply_effects, render_background
 from tactile_bench.metrics import estimate_pixel_noise, fit_encoder, kid, ssim_mse
 
-# KID only compares sets in the encoder's features: 150 steps keep a 300-pair export's
-# before/after ratio (34.4 -> 4.3 at 300 steps, 13.3 -> 1.5 at 150) for half the time
+# KID only compares sets in the encoder's features: a short training keeps the before/after
+# order of a 300-pair export for half the time of a long one (docs/results/diagnosis_settings.md)
 ENCODER_STEPS = 150
-# training images seen per classifier (epochs = this / training images). Few pairs of many
-# classes: with ~6 images a class, only long training with random shifts generalises at all
-# (150 braille pairs: a real-trained classifier reads held-out real at 3% without, 33% with;
-# tuned on exports of another seed: 9000 -> 15000 images lifted it from 35% to 60%, 20000 to
-# 69% for a third more time than 15000)
+# training images seen per classifier (epochs = this / training images): with a few images a
+# class, only long training with random shifts generalises at all (the same page)
 CLASSIFIER_SAMPLES = 15000
 MAX_EPOCHS = 60
-# random shifts up to this share of the image size: braille contacts vary by +-3 mm (about
-# +-10 px at 64 px); 6 px read held-out real at 35%, 2 px at 27% (same tuning exports)
+# random shifts up to this share of the image size: braille contacts vary by +-3 mm, about
+# +-10 px at 64 px
 SHIFT_FRACTION = 6 / 64
 NOISE_TRAIN_IMAGES = 2000  # noise-matched copies: about this many training images a set
 NOISE_COPIES = 8  # ... and at most this many copies of each image
+
+
+@dataclass(frozen=True)
+class Skipped:
+    """A part of the answer not computed, and why."""
+
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"skipped": self.reason}
+
+
+@dataclass
+class KidScores:
+    """KID of sim and sim + effects against real, in the project encoder's features."""
+
+    kid_before: float
+    kid_after: float
+    kid_before_std: float
+    kid_after_std: float
+    encoder: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class Downstream:
+    """Held-out real accuracy of classifiers trained on plain sim, sim + effects and real."""
+
+    classes: int
+    n_train: int
+    n_test: int
+    epochs: int
+    classifier: str
+    noise: dict[str, Any]  # the noise treatment, each training set's noise and what was added
+    plain_sim_accuracy: float = math.nan
+    sim_plus_effects_accuracy: float = math.nan
+    real_accuracy: float = math.nan
+
+    @property
+    def accuracies(self) -> dict[str, float]:
+        """Each training source's accuracy: plain_sim, sim_plus_effects, real."""
+        return {
+            "plain_sim": self.plain_sim_accuracy,
+            "sim_plus_effects": self.sim_plus_effects_accuracy,
+            "real": self.real_accuracy,
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class HowFar:
+    """The held-out gap before and after adding the selected effects, three ways."""
+
+    effects: dict[str, dict[str, float]]
+    pixel_before: dict[str, float]
+    pixel_after: dict[str, float]
+    distribution: KidScores | Skipped
+    downstream: Downstream | Skipped
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "effects": self.effects,
+            "pixel": {"before": self.pixel_before, "after": self.pixel_after},
+            "distribution": self.distribution.to_dict(),
+            "downstream": self.downstream.to_dict(),
+        }
 
 
 def _foreground(images: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
@@ -88,28 +155,28 @@ def _downstream(
     effects: Mapping[str, Mapping[str, float]],
     seed: int,
     progress: bool,
-) -> dict[str, Any]:
+) -> Downstream | Skipped:
     from tactile_bench.classify import ClassifierConfig, evaluate, train_classifier
 
     fit_labels = [data.labels[i] for i in fit_idx.tolist()]
     held_labels = [data.labels[i] for i in held_idx.tolist()]
     if any(label == "" for label in fit_labels + held_labels):
-        return {"skipped": "unlabelled pairs: no downstream classifier"}
+        return Skipped("unlabelled pairs: no downstream classifier")
     classes = sorted(set(fit_labels))
     if len(classes) < 2:
-        return {"skipped": f"fewer than 2 classes in the fit split ({len(classes)})"}
+        return Skipped(f"fewer than 2 classes in the fit split ({len(classes)})")
     index = {c: i for i, c in enumerate(classes)}
     known = [i for i, label in enumerate(held_labels) if label in index]
     if not known:
-        return {"skipped": "no held-out pair has a class seen in the fit split"}
+        return Skipped("no held-out pair has a class seen in the fit split")
     y_fit = torch.tensor([index[c] for c in fit_labels])
     y_held = torch.tensor([index[held_labels[i]] for i in known])
-    base = make_base(data, fit_idx, lookup_from=fit_idx)
-    sim_bg = base.background[0]
+    scene = make_scene(data, fit_idx, fit_reference(data, fit_idx))
+    sim_bg = scene.background[0]
     train_sets = {
         "plain_sim_accuracy": _foreground(data.sim[fit_idx], sim_bg),
         "sim_plus_effects_accuracy": _foreground(
-            apply_effects(data, effects, fit_idx, seed, fit_idx), render_background(base, effects)
+            apply_effects(data, effects, fit_idx, seed, fit_idx), render_background(scene, effects)
         ),
         "real_accuracy": _foreground(data.real[fit_idx], data.background),
     }
@@ -121,18 +188,17 @@ def _downstream(
     config = ClassifierConfig(
         width=8, blocks=(1, 1, 1, 1), epochs=epochs, augment=True, shift_px=shift, seed=seed
     )
-    out: dict[str, Any] = {
-        "classes": len(classes),
-        "n_train": len(fit_idx),
-        "n_test": len(known),
-        "epochs": epochs,
-        "classifier": f"ResNet topology, width 8, blocks (1, 1, 1, 1), +-{shift} px shifts, "
+    out = Downstream(
+        classes=len(classes),
+        n_train=len(fit_idx),
+        n_test=len(known),
+        epochs=epochs,
+        classifier=f"ResNet topology, width 8, blocks (1, 1, 1, 1), +-{shift} px shifts, "
         "from scratch",
-    }
-    if real_std is None:
-        out["noise"] = {"treatment": "none: too few real frames to estimate their pixel noise"}
-    else:
-        out["noise"] = {
+        noise={"treatment": "none: too few real frames to estimate their pixel noise"},
+    )
+    if real_std is not None:
+        out.noise = {
             "treatment": "per-channel pixel noise of each training set and of the fit split's "
             "real frames estimated frame to frame (deviation from the per-pixel median, "
             "3-sigma clipped); white Gaussian noise added to a set cleaner than real, up to "
@@ -147,12 +213,13 @@ def _downstream(
         if real_std is not None:
             x, own, added = match_noise(x, real_std, copies, seed)
             source = key.removesuffix("_accuracy")
-            out["noise"][source] = {"std": (255 * own).tolist(), "added": (255 * added).tolist()}
+            out.noise[source] = {"std": (255 * own).tolist(), "added": (255 * added).tolist()}
         with tempfile.TemporaryDirectory() as tmp:
             model = train_classifier(
                 x, y_train, config, tmp, loggers=[], trainer_kwargs=quiet, num_classes=len(classes)
             )
-        out[key] = evaluate(model, test, y_held, num_classes=len(classes))["accuracy"]
+        accuracy = evaluate(model, test, y_held, num_classes=len(classes))["accuracy"]
+        setattr(out, key, accuracy)
     return out
 
 
@@ -164,32 +231,31 @@ def how_far(
     downstream: bool = True,
     seed: int = 0,
     progress: bool = True,
-) -> dict[str, Any]:
+) -> HowFar:
     """Gap before and after adding ``effects``, on the held-out split (module docstring)."""
     fit_idx = torch.as_tensor(fit_idx, dtype=torch.long)
     held_idx = torch.as_tensor(held_idx, dtype=torch.long)
     real, sim = data.real[held_idx].float(), data.sim[held_idx].float()
     sim_fx = apply_effects(data, effects, held_idx, seed, fit_idx)
-    out: dict[str, Any] = {
-        "effects": {k: dict(v) for k, v in effects.items()},
-        "pixel": {"before": ssim_mse(sim, real), "after": ssim_mse(sim_fx, real)},
-    }
+    distribution: KidScores | Skipped = Skipped("fewer than 2 pairs in a split")
     if len(held_idx) >= 2 and len(fit_idx) >= 2:
         encoder = fit_encoder(data.real[fit_idx].float(), steps=ENCODER_STEPS, seed=seed)
         f_real, f_sim, f_fx = (encoder.features(x) for x in (real, sim, sim_fx))
         kid_before, std_before = kid(f_sim, f_real, seed=seed)
         kid_after, std_after = kid(f_fx, f_real, seed=seed)
-        out["distribution"] = {
-            "kid_before": kid_before,
-            "kid_after": kid_after,
-            "kid_before_std": std_before,
-            "kid_after_std": std_after,
-            "encoder": f"project autoencoder, {ENCODER_STEPS} steps on the fit split's real",
-        }
-    else:
-        out["distribution"] = {"skipped": "fewer than 2 pairs in a split"}
-    if downstream:
-        out["downstream"] = _downstream(data, fit_idx, held_idx, effects, seed, progress)
-    else:
-        out["downstream"] = {"skipped": "--no-downstream"}
-    return out
+        distribution = KidScores(
+            kid_before,
+            kid_after,
+            std_before,
+            std_after,
+            f"project autoencoder, {ENCODER_STEPS} steps on the fit split's real",
+        )
+    return HowFar(
+        effects={k: dict(v) for k, v in effects.items()},
+        pixel_before=ssim_mse(sim, real),
+        pixel_after=ssim_mse(sim_fx, real),
+        distribution=distribution,
+        downstream=_downstream(data, fit_idx, held_idx, effects, seed, progress)
+        if downstream
+        else Skipped("--no-downstream"),
+    )

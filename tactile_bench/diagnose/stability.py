@@ -4,18 +4,15 @@ An effect of the sensor has one set of parameters whatever the press, so fitted 
 shallowest presses it still names itself on the deepest: the invariance across environments
 that Peters, Buehlmann & Meinshausen (2016, "Causal inference by using invariant prediction",
 JRSS B 78(5)) use to tell a causal model from one that only fits. An effect outside the
-candidates is mimicked by a different mix of candidates at each depth. Measured on the
-project's own validation (``scripts/diagnosis_depth_split.py``): a defocus blur withheld from
-the candidates is explained on a random split by optical_response + elastic_spread (0.018
-unexplained) and on the depth split by led_diffusivity; a blur, an elastic spread or an
-optical response that is a candidate names itself on both splits.
+candidates is mimicked by a different mix of candidates at each depth (measured in
+docs/diagnosis.md, with ``scripts/diagnosis_depth_split.py``).
 
 ``check`` takes the re-run as a callable so that this module does not import the selection.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
@@ -87,17 +84,16 @@ def check(
     )
 
 
-def warning(stability: Mapping[str, Any] | None) -> str | None:
-    """The report's sentence when the depth split disagrees (``Stability.to_dict()``), else
-    None."""
-    if not stability or stability.get("agrees", True):
+def warning(stability: Stability | None) -> str | None:
+    """The report's sentence when the depth split disagrees, else None."""
+    if stability is None or stability.agrees:
         return None
+    first, accepted = stability.named_first, " / ".join(stability.accepted)
     return (
-        f"fitted on the {stability['n_fit']} shallowest presses (to "
-        f"{stability['depth_fit_mm']:.2f} mm) and scored on the {stability['n_held']} deepest "
-        f"(from {stability['depth_held_mm']:.2f} mm), the selection names "
-        f"{stability['named_first']} first, which it neither selects nor finds confusable with "
-        f"{' / '.join(stability['accepted'])}: the explanation depends on the presses it was "
-        f"fitted on, so an effect is missing from it ({stability['named_first']}, or one "
+        f"fitted on the {stability.n_fit} shallowest presses (to "
+        f"{stability.depth_fit_mm:.2f} mm) and scored on the {stability.n_held} deepest "
+        f"(from {stability.depth_held_mm:.2f} mm), the selection names {first} first, which "
+        f"it neither selects nor finds confusable with {accepted}: the explanation depends on "
+        f"the presses it was fitted on, so an effect is missing from it ({first}, or one "
         "outside the candidates). Presses of one shape at several depths would show which"
     )

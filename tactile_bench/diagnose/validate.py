@@ -42,8 +42,9 @@ from tactile_bench.diagnose.foreign import (
     shared_real_available,
 )
 from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.simulate import apply_effects
 from tactile_bench.diagnose.validate_report import summarise, write_report
-from tactile_bench.diagnose.which import BACKGROUND_LINE, apply_effects, explain_gap
+from tactile_bench.diagnose.which import BACKGROUND_LINE, WhichResult, explain_gap
 from tactile_bench.effects import EFFECTS
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.geometry.contacts import classifier_test_protocol
@@ -198,42 +199,49 @@ def case_pairs(
 def run_case(
     case: Case, bank: HeightFieldBank, n: int, seed: int, size: int, index: int
 ) -> dict[str, Any]:
-    """Plant, diagnose blind, and score one case."""
+    """Plant, diagnose blind, and score one case: a row of validation.json."""
     start = time.perf_counter()
     data, fit_idx, held_idx = case_pairs(case, bank, n, seed, size, index)
     candidates = [c for c in DEFAULT_CANDIDATES if c not in case.removed]
     result = explain_gap(data, fit_idx, held_idx, candidates, seed=seed, progress=False)
     seconds = time.perf_counter() - start
-    selected = [r.effect for r in result.ranking]
-    single_order = [r.effect for r in result.singles]
-    in_set = [e for e in case.planted if e in candidates]
-    fitted_vs_true: dict[str, dict[str, list[float | None]]] = {}
-    singles = {r.effect: r for r in result.singles}
-    for e in in_set if case.foreign is None else ():  # foreign plants name their own params
-        fitted = result.selected_params.get(e) or singles[e].params
-        fitted_vs_true[e] = {
-            k: [v, fitted.get(k)] for k, v in case.params[e].items() if k in fitted
-        }
     real = data.real[held_idx]
-    before = ssim_mse(data.sim[held_idx], real)
-    after = ssim_mse(apply_effects(data, result.selected_params, held_idx, seed, fit_idx), real)
-    # ranked first: the first effect on what the background correction leaves; the
-    # background line itself when no effect is selected after it
-    top = result.ranking[0] if result.ranking else result.background
-    runner_up = result.singles[1] if len(result.singles) > 1 else None
-    bg = result.background
-    row: dict[str, Any] = {
+    after = apply_effects(data, result.selected_params, held_idx, seed, fit_idx)
+    pixel = {"before": ssim_mse(data.sim[held_idx], real), "after": ssim_mse(after, real)}
+    row = {
+        **_case_fields(case, n),
+        **_answer_fields(result),
+        **_truth_fields(case, result, [e for e in case.planted if e in candidates]),
+        **_gap_fields(result),
+        "pixel": pixel,
+        "seconds": round(seconds, 1),
+    }
+    return row | _verdict(case, row, result)
+
+
+def _case_fields(case: Case, n: int) -> dict[str, Any]:
+    """What was planted, by which renderer, and what was withheld."""
+    return {
         "case": case.name,
         "suite": case.suite,
         "renderer": "surrogate" if case.foreign is None else f"foreign {case.foreign[1]}",
         "variant": "own" if case.foreign is None else case.foreign[2],
-        "background_share": round(bg.shrink, 4) if bg else None,
         "kind": case.kind,
         "planted": case.params,
         "planted_names": list(case.planted),
         "candidates_removed": list(case.removed),
         "n_pairs": n,
-        "selected": selected,
+    }
+
+
+def _answer_fields(result: WhichResult) -> dict[str, Any]:
+    """What the diagnosis named: the selection, the first effect (the background line when
+    nothing is selected after it) and the runner-up alone."""
+    top = result.ranking[0] if result.ranking else result.background
+    runner_up = result.singles[1] if len(result.singles) > 1 else None
+    return {
+        "background_share": round(result.background.shrink, 4) if result.background else None,
+        "selected": [r.effect for r in result.ranking],
         "confusable": {r.effect: r.confusable_with for r in result.ranking if r.confusable_with},
         "selected_shrink": [round(r.shrink, 4) for r in result.ranking],
         "top1": top.effect if top else None,
@@ -241,30 +249,54 @@ def run_case(
         "runner_up": {"effect": runner_up.effect, "shrink": round(runner_up.shrink, 4)}
         if runner_up
         else None,
-        "rank_of_true": {e: single_order.index(e) + 1 for e in in_set},
+    }
+
+
+def _truth_fields(case: Case, result: WhichResult, in_set: list[str]) -> dict[str, Any]:
+    """Where the planted effects (those among the candidates) rank alone, and their fitted
+    parameters against the planted ones (own suite: foreign plants name their own)."""
+    singles = {r.effect: r for r in result.singles}
+    order = [r.effect for r in result.singles]
+    fitted_vs_true: dict[str, dict[str, list[float | None]]] = {}
+    for e in in_set if case.foreign is None else ():
+        fitted = result.selected_params.get(e) or singles[e].params
+        fitted_vs_true[e] = {
+            k: [v, fitted.get(k)] for k, v in case.params[e].items() if k in fitted
+        }
+    return {
+        "rank_of_true": {e: order.index(e) + 1 for e in in_set},
         "single_shrink_of_true": {e: round(singles[e].shrink, 4) for e in in_set},
         "fitted_vs_true": fitted_vs_true,
-        "gap_before": round(result.gap_before, 4),
-        "gap_after": round(result.gap_after, 4),
+    }
+
+
+def _gap_fields(result: WhichResult) -> dict[str, Any]:
+    """The held-out gap before and after, the residual and the flags."""
+    before, after = result.gap_before, result.gap_after
+    return {
+        "gap_before": round(before, 4),
+        "gap_after": round(after, 4),
         "gap_floor": round(result.gap_floor, 4),
-        "shrink": round(1 - result.gap_after / result.gap_before, 4) if result.gap_before else 0.0,
+        "shrink": round(1 - after / before, 4) if before else 0.0,
         "unexplained": round(result.unexplained, 4),
         "residual_flagged": result.residual_flagged,
         "depth_split_first": result.stability.named_first if result.stability else None,
         "unstable": result.unstable,
         "flagged": result.flagged,
-        "pixel": {"before": before, "after": after},
-        "seconds": round(seconds, 1),
     }
+
+
+def _verdict(case: Case, row: dict[str, Any], result: WhichResult) -> dict[str, Any]:
+    """A single plant passes when named first; a double when both are selected; an
+    out-of-catalogue plant when it is not blamed with high confidence (a selection and
+    no flag)."""
     if case.kind == "single":
-        row["expected"] = SHOWN_AS.get(case.planted[0], case.planted[0])
-        row["passed"] = row["top1"] == row["expected"]
-    elif case.kind == "double":
-        row["passed"] = all(e in selected for e in case.planted)
-    else:
-        row["blamed_with_high_confidence"] = bool(selected) and not result.flagged
-        row["passed"] = not row["blamed_with_high_confidence"]
-    return row
+        expected = SHOWN_AS.get(case.planted[0], case.planted[0])
+        return {"expected": expected, "passed": row["top1"] == expected}
+    if case.kind == "double":
+        return {"passed": all(e in row["selected"] for e in case.planted)}
+    blamed = bool(row["selected"]) and not result.flagged
+    return {"blamed_with_high_confidence": blamed, "passed": not blamed}
 
 
 def validate_diagnosis(

@@ -53,7 +53,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     if config.max_pairs is not None and len(data) > config.max_pairs:
         keep, _ = stratified_split(data.labels, config.max_pairs / len(data), ctx.seed)
         data = data.subset(keep)
-    report = diagnose(
+    result = diagnose(
         data,
         ctx.directory,
         downstream=config.downstream,
@@ -63,13 +63,13 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         progress=ctx.progress,
         source={"root": str(data_stage.directory), "layout": "braille_data", "set": config.set},
     )
-    top = report["ranking"][0] if report["ranking"] else None
+    top = result.which.ranking[0] if result.which.ranking else None
     metrics = {
-        "n_pairs": report["n_pairs"],
-        "mse": report["where"]["mse"],
-        "top_effect": top["effect"] if top else None,
-        "top_shrink": top["shrink"] if top else None,
-        "unexplained": report["unexplained"],
+        "n_pairs": result.n_pairs,
+        "mse": result.where.summary["mse"],
+        "top_effect": top.effect if top else None,
+        "top_shrink": top.shrink if top else None,
+        "unexplained": result.which.unexplained,
         # the precision its downstream classifiers (default config) trained in; None: none
         "compute_precision": (
             classifier_precision(ClassifierConfig()) if config.downstream else None
