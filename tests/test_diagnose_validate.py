@@ -10,13 +10,14 @@ import torch
 
 from tactile_bench.cli import main
 from tactile_bench.diagnose.candidates import DEFAULT_CANDIDATES
-from tactile_bench.diagnose.shrink import KidScores, Skipped, how_far
+from tactile_bench.diagnose.shrink import Downstream, KidScores, Skipped, how_far
 from tactile_bench.diagnose.validate import (
     Case,
     draw_params,
     make_cases,
     planted_pairs,
     run_case,
+    verdict,
 )
 from tactile_bench.diagnose.validate_report import markdown, summarise
 from tactile_bench.effects import EFFECTS
@@ -128,10 +129,10 @@ def test_how_far_downstream_trains_both_classifiers(bank) -> None:
     data = planted_pairs(bank, {"optical_response": {"blend": 1.0}}, 48, 2, 32)
     idx = torch.arange(48)
     out = how_far(data, idx[:24], idx[24:], {"optical_response": {"blend": 1.0}})
-    d = out["downstream"]
-    for key in ("plain_sim_accuracy", "sim_plus_effects_accuracy", "real_accuracy"):
-        assert 0.0 <= d[key] <= 1.0
-    noise = d["noise"]  # estimated from the pairs: real's own level adds nothing to real
+    d = out.downstream
+    assert isinstance(d, Downstream)
+    assert all(0.0 <= v <= 1.0 for v in d.accuracies.values())
+    noise = d.noise  # estimated from the pairs: real's own level adds nothing to real
     assert len(noise["real_std"]) == 3 and noise["real"]["added"] == [0.0, 0.0, 0.0]
     assert {"plain_sim", "sim_plus_effects"} <= set(noise) and noise["copies"] >= 1
 
@@ -159,6 +160,30 @@ def test_foreign_suite_cases_span_shadings_variants_and_withheld_plants() -> Non
         assert c.planted[0] not in DEFAULT_CANDIDATES
     assert {c.foreign[0] for c in outs} >= {"barrel", "chromatic"}
     assert make_cases(quick=False, seed=0, suites=("foreign",))[3].params == cases[3].params
+
+
+def test_lens_blur_cases_in_both_suites_each_told_apart_or_confusable() -> None:
+    cases = make_cases(quick=True, seed=0, suites=("own", "foreign"))
+    told = [c for c in cases if c.kind == "named_or_confusable"]
+    assert {c.suite for c in told} == {"own", "foreign"}
+    lens = [c for c in told if c.required == ("defocus_blur",)]
+    double = [c for c in told if c.required == ("defocus_blur", "elastic_spread")]
+    assert len(lens) >= 3 and len(double) >= 3  # own, and each foreign shading and variant
+    own_lens = next(c for c in lens if c.suite == "own")
+    assert list(own_lens.params) == ["defocus_blur", "camera_noise"]  # noise after the blur
+    # the earlier cases keep their index, so their data and split are the ones they had
+    assert cases.index(told[0]) == len(cases) - len(told)
+
+
+def test_a_blur_blamed_on_the_spread_with_confidence_fails() -> None:
+    case = Case("lens", "named_or_confusable", ["defocus_blur"], required=("defocus_blur",))
+    blamed = {"selected": ["elastic_spread", "camera_noise"], "confusable": {}}
+    out = verdict(case, blamed)
+    assert out["missing"] == ["defocus_blur"] and not out["passed"]
+    said = {"selected": ["elastic_spread"], "confusable": {"elastic_spread": ["defocus_blur"]}}
+    assert verdict(case, said)["passed"]
+    named = {"selected": ["defocus_blur", "camera_noise"], "confusable": {}}
+    assert verdict(case, named)["passed"]
 
 
 def test_one_foreign_case_end_to_end(bank) -> None:

@@ -79,6 +79,13 @@ def _ranking_lines(which: WhichResult) -> list[str]:
             )
     if not which.ranking:
         lines.append("  (no candidate effect shrinks the gap)")
+    if which.shapley:
+        lines.append(
+            "  whatever the order (Shapley share of the held-out gap over every order of the "
+            "selected effects, 95% CI):"
+        )
+        for s in which.shapley:
+            lines.append(f"  {s.effect:<20} share  {s.share:.3f} [{s.ci_low:.3f}, {s.ci_high:.3f}]")
     if which.set_aside_as_denoising:
         lines.append(
             f"  set aside: {', '.join(which.set_aside_as_denoising)} (removes only the sim's "

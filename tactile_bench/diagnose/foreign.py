@@ -66,6 +66,9 @@ class ForeignPlant:
     kind: str  # "single" (a catalogue effect) or "out_of_catalogue", as in validate.Case
     draw: Callable[[np.random.Generator], dict[str, float]]
     note: str
+    parts: tuple[str, ...] = ()  # the plants applied together (one: itself)
+    # the catalogue effects it must be named as, or found confusable with (combined plants)
+    named_as: tuple[str, ...] = ()
 
 
 Range = tuple[float, float] | tuple[float, float, float]
@@ -115,8 +118,34 @@ _TABLE: dict[str, tuple[str | None, str, dict[str, Range]]] = {
     "chromatic": (None, "lateral chromatic aberration", {"lateral": (0.01, 0.02, 0.0)}),
 }
 FOREIGN_PLANTS: dict[str, ForeignPlant] = {
-    name: ForeignPlant(name, exp, "single" if exp else "out_of_catalogue", _ranged(r), note)
+    name: ForeignPlant(
+        name, exp, "single" if exp else "out_of_catalogue", _ranged(r), note, (name,)
+    )
     for name, (exp, note, r) in _TABLE.items()
+}
+#: plants applied together: name -> (parts, what it must be named as or found confusable
+#: with, what it is). A lens blur is a blur after the optics, the no-contact frame through
+#: the same lens, with the sensor's noise after it.
+_COMBINED: dict[str, tuple[tuple[str, ...], tuple[str, ...], str]] = {
+    "lens_blur": (("blur", "noise"), ("defocus_blur",), "lens blur, noise after it"),
+    "blur_elastic": (
+        ("blur", "elastic"),
+        ("defocus_blur", "elastic_spread"),
+        "lens blur and soft gel sag",
+    ),
+}
+SINGLE_PLANTS, COMBINED_PLANTS = tuple(_TABLE), tuple(_COMBINED)
+FOREIGN_PLANTS |= {
+    name: ForeignPlant(
+        name,
+        named_as[0],
+        "named_or_confusable",
+        _ranged({k: v for part in parts for k, v in _TABLE[part][2].items()}),
+        note,
+        parts,
+        named_as,
+    )
+    for name, (parts, named_as, note) in _COMBINED.items()
 }
 
 
@@ -225,32 +254,32 @@ def _scene(
     depth: np.ndarray,
     gel: GelSpec,
     real: tuple[np.ndarray, np.ndarray] | None,
-    plant: str | None,
+    parts: frozenset[str],
     p: dict[str, float],
 ) -> tuple[np.ndarray, np.ndarray]:
     """(no-contact frame (3, S, S), colour change (N, 3, S, S)) leaving the gel, before the
     camera; ``real`` holds the polycalib references (None: lambert shading)."""
     scale = gel.size / REF_SIZE
-    if plant == "elastic":
+    if "elastic" in parts:
         depth = _soft_gel(depth, gel, p["a_mm"], p["skirt"])
-    if plant == "shift":
+    if "shift" in parts:
         angle = np.deg2rad(p["angle_deg"])
         step = p["length_px"] * scale * np.array([0.0, np.sin(angle), np.cos(angle)])
         depth = ndimage.shift(depth, step, order=1)  # the depth lies off by (dx, dy)
-    gain = np.array([p[f"gain_{c}"] for c in "rgb"]) if plant == "gain" else np.ones(3)
+    gain = np.array([p[f"gain_{c}"] for c in "rgb"]) if "gain" in parts else np.ones(3)
     if real is None:
         flat = _lambert(np.zeros((1, gel.size, gel.size)), gel, LIGHT_ELEVATION_DEG, gain)[0]
-        el = LIGHT_ELEVATION_DEG + (p["elevation_shift_deg"] if plant == "optics" else 0.0)
+        el = LIGHT_ELEVATION_DEG + (p["elevation_shift_deg"] if "optics" in parts else 0.0)
         change = _lambert(depth, gel, el, gain) - _lambert(np.zeros_like(depth[:1]), gel, el, gain)
     else:
         coeffs, background = real
         flat = background * gain[:, None, None]
         change = _polycalib_change(depth, gel, coeffs) * gain[None, :, None, None]
-        if plant == "optics":
+        if "optics" in parts:
             mix = np.eye(3)
             mix[0, 1], mix[1, 2], mix[2, 0] = p["mix_rg"], p["mix_gb"], p["mix_br"]
             change = np.einsum("cd,ndhw->nchw", mix, change)
-    if plant == "optics":
+    if "optics" in parts:
         change = p["saturation"] * np.tanh(change / p["saturation"])
     return flat, change
 
@@ -286,32 +315,32 @@ def _jpeg(frame: np.ndarray, quality: float) -> np.ndarray:
 def _camera(
     x: np.ndarray,
     gel: GelSpec,
-    plant: str | None,
+    parts: frozenset[str],
     p: dict[str, float],
     rng: np.random.Generator | None,
 ) -> np.ndarray:
     """The real camera on whole frames (M, 3, S, S): lens, sensor, processing, storage.
     ``rng`` None = the noise-free average frame."""
     scale = gel.size / REF_SIZE
-    if plant == "barrel":  # barrel: the image is squeezed towards the edges
+    if "barrel" in parts:  # barrel: the image is squeezed towards the edges
         x = _radial_remap(x, gel, lambda c, r: 1.0 + p["k1"] * r**2)
-    if plant == "chromatic":  # R magnified by 1 + lateral, B by 1 - lateral
+    if "chromatic" in parts:  # R magnified by 1 + lateral, B by 1 - lateral
         mag = (1 + p["lateral"], 1.0, 1 - p["lateral"])
         x = _radial_remap(x, gel, lambda c, r: np.full_like(r, 1.0 / mag[c]))
-    if plant == "vignetting":  # natural cos^4 falloff, corner_loss lost at the corner
+    if "vignetting" in parts:  # natural cos^4 falloff, corner_loss lost at the corner
         xm, ym = _coords_mm(gel)
         corner = np.arccos((1 - p["corner_loss"]) ** 0.25)
         focal = np.hypot(gel.width_mm / 2, gel.height_mm / 2) / np.tan(corner)
         x = x * np.cos(np.arctan(np.hypot(xm, ym) / focal)) ** 4
-    if plant == "blur":
+    if "blur" in parts:
         x = ndimage.gaussian_filter(x, (0, 0, p["sigma_px"] * scale, p["sigma_px"] * scale))
-    if plant == "noise" and rng is not None:
+    if "noise" in parts and rng is not None:
         electrons = rng.poisson(np.clip(x, 0, None) / p["shot_gain"])
         x = electrons * p["shot_gain"] + rng.normal(0.0, p["read_noise"], x.shape)
-    if plant == "gamma":
+    if "gamma" in parts:
         wb = np.array([p["wb_r"], 1.0, p["wb_b"]])[None, :, None, None]
         x = 255.0 * (np.clip(x * wb, 0, 255) / 255.0) ** (1.0 / p["gamma"])
-    if plant == "jpeg":
+    if "jpeg" in parts:
         x = np.stack([_jpeg(f, p["quality"]) for f in x])
     return np.clip(x, 0, 255)
 
@@ -353,11 +382,12 @@ def foreign_pairs(
     depth_t = render_depth(bank, poses, gel)
     depth = depth_t[:, 0].double().numpy()
     real_refs = _load_real(real_dir, size) if shading == "polycalib" else None
-    sim_flat, sim_change = _scene(depth, gel, real_refs, None, {})
-    flat, change = _scene(depth, gel, real_refs, plant, params)
+    parts = frozenset(FOREIGN_PLANTS[plant].parts) if plant is not None else frozenset()
+    sim_flat, sim_change = _scene(depth, gel, real_refs, frozenset(), {})
+    flat, change = _scene(depth, gel, real_refs, parts, params)
     rng = np.random.default_rng([seed, 23])
-    real = _camera(np.clip(flat + change, 0, 255), gel, plant, params, rng)
-    measured = np.rint(_camera(np.clip(flat, 0, 255)[None], gel, plant, params, None)[0])
+    real = _camera(np.clip(flat + change, 0, 255), gel, parts, params, rng)
+    measured = np.rint(_camera(np.clip(flat, 0, 255)[None], gel, parts, params, None)[0])
     base = sim_flat if variant == "own" else measured  # composited: TACTO's real background
     sim = np.rint(np.clip(base + sim_change, 0, 255))
 

@@ -302,6 +302,13 @@ def render_html(result: Diagnosis, figures: Mapping[str, str]) -> str:
         "<h3>selected (first line: the measured background; then greedy forward selection on "
         "what it leaves)</h3>" + _table([r.to_dict() for r in first + which.ranking], cols)
     )
+    if which.shapley:
+        parts.append(
+            "<h3>each selected effect's share whatever the order (Shapley value over every "
+            "order of the selected effects, each subset refitted; shares of the held-out gap, "
+            "summing to what the selection removes)</h3>"
+            + _table([s.to_dict() for s in which.shapley], ["effect", "share", "ci_low", "ci_high"])
+        )
     parts.append(f"<p>unexplained share of the held-out gap: {_fmt(which.unexplained)}</p>")
     singles = [r.to_dict() for r in which.singles]
     parts.append("<h3>every candidate alone</h3>" + _table(singles, cols) + img("shrinks"))

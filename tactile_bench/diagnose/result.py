@@ -43,6 +43,7 @@ _WHICH_TOP = (
     "gap_metric",
     "background",
     "background_note",
+    "shapley",
 )
 
 
@@ -80,6 +81,7 @@ class Diagnosis:
             "background": which["background"],
             "background_note": which["background_note"],
             "ranking": which["ranking"],
+            "shapley": which["shapley"],
             "singles": which["singles"],
             "unexplained": which["unexplained"],
             "residual_flagged": which["residual_flagged"],

@@ -16,11 +16,12 @@ of the no-contact frame, real over the measured one.
 
 Pixel noise: zero-mean noise never lowers a paired gap, so the selection never adds camera
 noise, and a sim (+ effects) that is cleaner than the real frames trains a classifier that
-reads noisy frames near chance (docs/results/diagnosis_settings.md). Each training set's per-channel noise is estimated frame to frame
-(``metrics.estimate_pixel_noise``, as the diffusion translator does) and so is that of the
-fit split's real frames; a set cleaner than real gets white Gaussian noise up to the real level, in
-``NOISE_COPIES`` seeded copies. Estimated from the paired data only; reported under
-``downstream.noise``. A set noisier than real is left as it is.
+reads noisy frames near chance (docs/results/diagnosis_settings.md). Each training set's
+per-channel noise is estimated frame to frame (``metrics.estimate_pixel_noise``, as the
+diffusion translator does) and so is that of the fit split's real frames; a set cleaner than
+real gets white Gaussian noise up to the real level, in ``NOISE_COPIES`` seeded copies.
+Estimated from the paired data only; reported under ``downstream.noise``. A set noisier than
+real is left as it is.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from tactile_bench.data.pixels import image_to_foreground
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.diagnose.scene import fit_reference, make_scene
 from tactile_bench.diagnose.simulate import apply_effects, render_background
+from tactile_bench.errors import TactileBenchError
 from tactile_bench.metrics import estimate_pixel_noise, fit_encoder, kid, ssim_mse
 
 # KID only compares sets in the encoder's features: a short training keeps the before/after
@@ -148,15 +150,24 @@ def match_noise(
     return out, own, added
 
 
-def _downstream(
-    data: PairedData,
-    fit_idx: torch.Tensor,
-    held_idx: torch.Tensor,
-    effects: Mapping[str, Mapping[str, float]],
-    seed: int,
-    progress: bool,
-) -> Downstream | Skipped:
-    from tactile_bench.classify import ClassifierConfig, evaluate, train_classifier
+@dataclass
+class _Classifiers:
+    """What every downstream classifier shares: the labels, the held-out real test set, the
+    training config and the real frames' pixel noise each training set is matched to."""
+
+    classes: list[str]
+    y_train: torch.Tensor
+    test: torch.Tensor
+    y_test: torch.Tensor
+    config: Any  # classify.ClassifierConfig (imported only when classifiers train)
+    real_std: torch.Tensor | None
+    copies: int
+
+
+def _classifiers(
+    data: PairedData, fit_idx: torch.Tensor, held_idx: torch.Tensor, seed: int
+) -> _Classifiers | Skipped:
+    from tactile_bench.classify import ClassifierConfig
 
     fit_labels = [data.labels[i] for i in fit_idx.tolist()]
     held_labels = [data.labels[i] for i in held_idx.tolist()]
@@ -169,58 +180,114 @@ def _downstream(
     known = [i for i, label in enumerate(held_labels) if label in index]
     if not known:
         return Skipped("no held-out pair has a class seen in the fit split")
-    y_fit = torch.tensor([index[c] for c in fit_labels])
-    y_held = torch.tensor([index[held_labels[i]] for i in known])
-    scene = make_scene(data, fit_idx, fit_reference(data, fit_idx))
-    sim_bg = scene.background[0]
-    train_sets = {
-        "plain_sim_accuracy": _foreground(data.sim[fit_idx], sim_bg),
-        "sim_plus_effects_accuracy": _foreground(
-            apply_effects(data, effects, fit_idx, seed, fit_idx), render_background(scene, effects)
-        ),
-        "real_accuracy": _foreground(data.real[fit_idx], data.background),
-    }
-    test = _foreground(data.real[held_idx[known]], data.background)
-    real_std = estimate_pixel_noise(train_sets["real_accuracy"])
+    real_std = estimate_pixel_noise(_foreground(data.real[fit_idx], data.background))
     copies = 1 if real_std is None else min(NOISE_COPIES, -(-NOISE_TRAIN_IMAGES // len(fit_idx)))
     epochs = min(MAX_EPOCHS, max(2, round(CLASSIFIER_SAMPLES / (len(fit_idx) * copies))))
     shift = max(1, round(SHIFT_FRACTION * data.size))
-    config = ClassifierConfig(
-        width=8, blocks=(1, 1, 1, 1), epochs=epochs, augment=True, shift_px=shift, seed=seed
+    return _Classifiers(
+        classes=classes,
+        y_train=torch.tensor([index[c] for c in fit_labels]).repeat(copies),
+        test=_foreground(data.real[held_idx[known]], data.background),
+        y_test=torch.tensor([index[held_labels[i]] for i in known]),
+        config=ClassifierConfig(
+            width=8, blocks=(1, 1, 1, 1), epochs=epochs, augment=True, shift_px=shift, seed=seed
+        ),
+        real_std=real_std,
+        copies=copies,
     )
+
+
+def _accuracy(
+    setup: _Classifiers, x: torch.Tensor, seed: int
+) -> tuple[float, dict[str, list[float]] | None]:
+    """Held-out real accuracy of a classifier trained on foregrounds ``x`` (noise matched to
+    the real frames'), and the noise it had and was given."""
+    from tactile_bench.classify import evaluate, train_classifier
+
+    noise = None
+    if setup.real_std is not None:
+        x, own, added = match_noise(x, setup.real_std, setup.copies, seed)
+        noise = {"std": (255 * own).tolist(), "added": (255 * added).tolist()}
+    quiet = {"enable_checkpointing": False, "enable_progress_bar": False}
+    logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
+    n_classes = len(setup.classes)
+    with tempfile.TemporaryDirectory() as tmp:
+        model = train_classifier(
+            x, setup.y_train, setup.config, tmp, loggers=[], trainer_kwargs=quiet,
+            num_classes=n_classes,
+        )  # fmt: skip
+    return evaluate(model, setup.test, setup.y_test, num_classes=n_classes)["accuracy"], noise
+
+
+def _sim_plus(
+    data: PairedData, fit_idx: torch.Tensor, effects: Mapping[str, Mapping[str, float]], seed: int
+) -> torch.Tensor:
+    """Foregrounds of the fit split's sim + ``effects`` over the candidate simulator's own
+    rendering of the no-contact frame."""
+    scene = make_scene(data, fit_idx, fit_reference(data, fit_idx))
+    images = apply_effects(data, effects, fit_idx, seed, fit_idx)
+    return _foreground(images, render_background(scene, effects))
+
+
+def _downstream(
+    data: PairedData,
+    fit_idx: torch.Tensor,
+    held_idx: torch.Tensor,
+    effects: Mapping[str, Mapping[str, float]],
+    seed: int,
+) -> Downstream | Skipped:
+    setup = _classifiers(data, fit_idx, held_idx, seed)
+    if isinstance(setup, Skipped):
+        return setup
+    sim_bg = make_scene(data, fit_idx).background[0]
+    train_sets = {
+        "plain_sim": _foreground(data.sim[fit_idx], sim_bg),
+        "sim_plus_effects": _sim_plus(data, fit_idx, effects, seed),
+        "real": _foreground(data.real[fit_idx], data.background),
+    }
+    shift = setup.config.shift_px
     out = Downstream(
-        classes=len(classes),
+        classes=len(setup.classes),
         n_train=len(fit_idx),
-        n_test=len(known),
-        epochs=epochs,
+        n_test=len(setup.y_test),
+        epochs=setup.config.epochs,
         classifier=f"ResNet topology, width 8, blocks (1, 1, 1, 1), +-{shift} px shifts, "
         "from scratch",
         noise={"treatment": "none: too few real frames to estimate their pixel noise"},
     )
-    if real_std is not None:
+    if setup.real_std is not None:
         out.noise = {
             "treatment": "per-channel pixel noise of each training set and of the fit split's "
             "real frames estimated frame to frame (deviation from the per-pixel median, "
             "3-sigma clipped); white Gaussian noise added to a set cleaner than real, up to "
-            f"the real level, in {copies} seeded copies of every training image",
-            "copies": copies,
-            "real_std": (255 * real_std).tolist(),
+            f"the real level, in {setup.copies} seeded copies of every training image",
+            "copies": setup.copies,
+            "real_std": (255 * setup.real_std).tolist(),
         }
-    y_train = y_fit.repeat(copies)
-    quiet = {"enable_checkpointing": False, "enable_progress_bar": False}
-    logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
-    for key, x in train_sets.items():
-        if real_std is not None:
-            x, own, added = match_noise(x, real_std, copies, seed)
-            source = key.removesuffix("_accuracy")
-            out.noise[source] = {"std": (255 * own).tolist(), "added": (255 * added).tolist()}
-        with tempfile.TemporaryDirectory() as tmp:
-            model = train_classifier(
-                x, y_train, config, tmp, loggers=[], trainer_kwargs=quiet, num_classes=len(classes)
-            )
-        accuracy = evaluate(model, test, y_held, num_classes=len(classes))["accuracy"]
-        setattr(out, key, accuracy)
+    for source, x in train_sets.items():
+        accuracy, noise = _accuracy(setup, x, seed)
+        if noise is not None:
+            out.noise[source] = noise
+        setattr(out, f"{source}_accuracy", accuracy)
     return out
+
+
+def accuracy_with_each(
+    data: PairedData,
+    fit_idx: torch.Tensor,
+    held_idx: torch.Tensor,
+    coalitions: Mapping[str, Mapping[str, Mapping[str, float]]],
+    seed: int = 0,
+) -> dict[str, float]:
+    """Held-out real accuracy of a classifier trained on the fit split's sim + each of
+    ``coalitions`` (name -> effects), as the downstream classifiers are trained."""
+    setup = _classifiers(data, fit_idx, held_idx, seed)
+    if isinstance(setup, Skipped):
+        raise TactileBenchError(f"no downstream classifier: {setup.reason}")
+    return {
+        name: _accuracy(setup, _sim_plus(data, fit_idx, effects, seed), seed)[0]
+        for name, effects in coalitions.items()
+    }
 
 
 def how_far(
@@ -255,7 +322,7 @@ def how_far(
         pixel_before=ssim_mse(sim, real),
         pixel_after=ssim_mse(sim_fx, real),
         distribution=distribution,
-        downstream=_downstream(data, fit_idx, held_idx, effects, seed, progress)
+        downstream=_downstream(data, fit_idx, held_idx, effects, seed)
         if downstream
         else Skipped("--no-downstream"),
     )

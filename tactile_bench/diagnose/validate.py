@@ -35,8 +35,10 @@ from tqdm.auto import tqdm
 
 from tactile_bench.diagnose.candidates import DEFAULT_CANDIDATES
 from tactile_bench.diagnose.foreign import (
+    COMBINED_PLANTS,
     FOREIGN_PLANTS,
     SHADINGS,
+    SINGLE_PLANTS,
     VARIANTS,
     foreign_pairs,
     shared_real_available,
@@ -65,6 +67,13 @@ OUT_OF_CATALOGUE: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("defocus_blur", ("defocus_blur",)),
 )
 QUICK_SINGLES = ("optical_response", "vignetting", "camera_noise", "elastic_spread")
+# a slightly defocused lens: blur after the optics (the no-contact frame through it too),
+# the sensor's noise after the blur (the foreign suite's ranges, in mm at 64 px)
+LENS_BLUR: dict[str, dict[str, tuple[float, float]]] = {
+    "defocus_blur": {"sigma_mm": (0.15, 0.45)},
+    "camera_noise": {"read_noise": (2.0, 5.0), "shot_gain": (0.05, 0.2)},
+}
+BLUR_AND_SPREAD = ("defocus_blur", "elastic_spread")
 # what the diagnosis names for a planted effect that is not itself a candidate
 SHOWN_AS = {"unit_background": BACKGROUND_LINE}  # the measured frame replaces the unit's
 OWN_SINGLES = (*DEFAULT_CANDIDATES, *SHOWN_AS)
@@ -77,9 +86,12 @@ class Case:
     """One validation case: what is planted and which candidates are withheld."""
 
     name: str
-    kind: str  # "single", "double" or "out_of_catalogue"
+    kind: str  # "single", "double", "named_or_confusable" or "out_of_catalogue"
     planted: list[str]  # catalogue names (foreign suite: what the plant is in the catalogue)
     removed: tuple[str, ...] = ()
+    # named_or_confusable: each of these must be selected or found confusable with a
+    # selected effect, never left out while another is named with a confident interval
+    required: tuple[str, ...] = ()
     params: dict[str, dict[str, float]] = field(default_factory=dict)
     suite: str = "own"
     foreign: tuple[str, str, str] | None = None  # (plant, shading, variant): foreign suite
@@ -115,30 +127,36 @@ def make_cases(quick: bool, seed: int, suites: tuple[str, ...] = ("own",)) -> li
     """The case list of ``suites`` with drawn parameters (seeded)."""
     cases = _own_cases(quick, seed) if "own" in suites else []
     if "foreign" in suites:
-        cases += _foreign_cases(quick, seed)
+        cases += _foreign_cases(QUICK_FOREIGN if quick else SINGLE_PLANTS, seed)
+    # the lens-blur cases last, so every earlier case keeps its index (its data and split)
+    if "own" in suites:
+        cases += _told_apart_cases(seed)
+    if "foreign" in suites:
+        cases += _foreign_cases(COMBINED_PLANTS, seed, first=len(SINGLE_PLANTS))
     return cases
 
 
-def _foreign_cases(quick: bool, seed: int) -> list[Case]:
-    """Every foreign plant under each shading and background variant (the real DIGIT's
-    shading only where ../shared/real is at hand)."""
+def _foreign_cases(plants: tuple[str, ...], seed: int, first: int = 0) -> list[Case]:
+    """Each of ``plants`` under each shading and background variant (the real DIGIT's
+    shading only where ../shared/real is at hand); ``first``: the first plant's draw index."""
     shadings = [s for s in SHADINGS if s != "polycalib" or shared_real_available()]
-    plants = QUICK_FOREIGN if quick else tuple(FOREIGN_PLANTS)
     cases = []
     for shading in shadings:
         for variant in VARIANTS:
-            for i, plant in enumerate(plants):
-                expected = FOREIGN_PLANTS[plant].expected
-                known = expected in DEFAULT_CANDIDATES or expected in SHOWN_AS
+            for i, plant in enumerate(plants, start=first):
+                spec = FOREIGN_PLANTS[plant]
+                known = spec.expected in DEFAULT_CANDIDATES or spec.expected in SHOWN_AS
+                kind = "single" if known else "out_of_catalogue"
                 rng = np.random.default_rng([seed, SHADINGS.index(shading), i, 13])
                 cases.append(
                     Case(
                         f"{plant} ({shading}, {variant})",
-                        "single" if known else "out_of_catalogue",
-                        [expected or plant],
-                        params={plant: FOREIGN_PLANTS[plant].draw(rng)},
+                        spec.kind if spec.named_as else kind,
+                        list(spec.named_as) or [spec.expected or plant],
+                        params={plant: spec.draw(rng)},
                         suite="foreign",
                         foreign=(plant, shading, variant),
+                        required=spec.named_as,
                     )
                 )
     return cases
@@ -157,6 +175,33 @@ def _own_cases(quick: bool, seed: int) -> list[Case]:
         rng = np.random.default_rng([seed, i, 7])
         case.params = {n: draw_params(n, rng) for n in case.planted}
     return cases
+
+
+def _told_apart_cases(seed: int) -> list[Case]:
+    """A lens blur (noise after it) and a blur + elastic spread double: each must be named or
+    found confusable, never blamed on the other with a confident interval."""
+    rng = np.random.default_rng([seed, 17])
+    lens = {
+        name: {k: float(f"{rng.uniform(*bounds):.4g}") for k, bounds in ranges.items()}
+        for name, ranges in LENS_BLUR.items()
+    }
+    double = {name: draw_params(name, rng) for name in BLUR_AND_SPREAD}
+    return [
+        Case(
+            "lens blur (defocus_blur, camera_noise after it)",
+            "named_or_confusable",
+            list(LENS_BLUR),
+            params=lens,
+            required=("defocus_blur",),
+        ),
+        Case(
+            " + ".join(BLUR_AND_SPREAD),
+            "named_or_confusable",
+            list(BLUR_AND_SPREAD),
+            params=double,
+            required=BLUR_AND_SPREAD,
+        ),
+    ]
 
 
 def planted_pairs(
@@ -216,7 +261,7 @@ def run_case(
         "pixel": pixel,
         "seconds": round(seconds, 1),
     }
-    return row | _verdict(case, row, result)
+    return row | verdict(case, row)
 
 
 def _case_fields(case: Case, n: int) -> dict[str, Any]:
@@ -244,6 +289,10 @@ def _answer_fields(result: WhichResult) -> dict[str, Any]:
         "selected": [r.effect for r in result.ranking],
         "confusable": {r.effect: r.confusable_with for r in result.ranking if r.confusable_with},
         "selected_shrink": [round(r.shrink, 4) for r in result.ranking],
+        "shapley": {
+            s.effect: [round(s.share, 4), round(s.ci_low, 4), round(s.ci_high, 4)]
+            for s in result.shapley
+        },
         "top1": top.effect if top else None,
         "top1_ci": [round(top.ci_low, 4), round(top.ci_high, 4)] if top else None,
         "runner_up": {"effect": runner_up.effect, "shrink": round(runner_up.shrink, 4)}
@@ -286,16 +335,21 @@ def _gap_fields(result: WhichResult) -> dict[str, Any]:
     }
 
 
-def _verdict(case: Case, row: dict[str, Any], result: WhichResult) -> dict[str, Any]:
-    """A single plant passes when named first; a double when both are selected; an
-    out-of-catalogue plant when it is not blamed with high confidence (a selection and
-    no flag)."""
+def verdict(case: Case, row: dict[str, Any]) -> dict[str, Any]:
+    """A single plant passes when named first; a double when both are selected; a lens blur
+    (or blur + spread) when each required effect is selected or found confusable with a
+    selected one; an out-of-catalogue plant when it is not blamed with high confidence (a
+    selection and no flag)."""
     if case.kind == "single":
         expected = SHOWN_AS.get(case.planted[0], case.planted[0])
         return {"expected": expected, "passed": row["top1"] == expected}
     if case.kind == "double":
         return {"passed": all(e in row["selected"] for e in case.planted)}
-    blamed = bool(row["selected"]) and not result.flagged
+    if case.kind == "named_or_confusable":
+        accounted = set(row["selected"]) | {e for c in row["confusable"].values() for e in c}
+        missing = [e for e in case.required if e not in accounted]
+        return {"expected": " + ".join(case.required), "missing": missing, "passed": not missing}
+    blamed = bool(row["selected"]) and not row["flagged"]
     return {"blamed_with_high_confidence": blamed, "passed": not blamed}
 
 
@@ -347,7 +401,8 @@ def run_command(ns: argparse.Namespace) -> int:
             f" {s['mean_rank_of_true']:.2f}; two-effect plants both found"
             f" {s['doubles_both_found']}/{s['n_double']}; out-of-catalogue flagged"
             f" {s['out_flagged']}/{s['n_out']}, blamed with high confidence"
-            f" {s['out_blamed_high_confidence']}"
+            f" {s['out_blamed_high_confidence']}; lens blur and blur + spread named or found"
+            f" confusable {s['told_apart']}/{s['n_told_apart']}"
         )
     print(f"{report['summary']['seconds']:.0f} s")
     print(f"wrote {Path(ns.out) / 'validation.json'} and validation.md")

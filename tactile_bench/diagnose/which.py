@@ -12,7 +12,10 @@
 4. ``_joint_if_better``: the selection's differentiable parameters refitted together;
 5. ``_answer``: what is left above the floor no model can remove, as a share of the initial
    gap (``unexplained``, flagged above ``FLAG_UNEXPLAINED``);
-6. ``_depth_split_check``: the first round re-run with the shallow presses fitted and the deep
+6. ``_coalition_gaps``: every subset of the selection refitted on its own, for each effect's
+   Shapley share of the explained gap (``shapley``), which does not depend on the order the
+   greedy selection added them in;
+7. ``_depth_split_check``: the first round re-run with the shallow presses fitted and the deep
    ones held out (``stability``): an explanation that names another effect there is flagged.
 
 The diagnosis reads paired data only.
@@ -20,6 +23,7 @@ The diagnosis reads paired data only.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -43,9 +47,11 @@ from tactile_bench.diagnose.noise import FrameNoise, frame_noise
 from tactile_bench.diagnose.paired import PairedData
 from tactile_bench.diagnose.ranking import DenoiseCheck, EffectFit, Options, pick_effect
 from tactile_bench.diagnose.scene import PairScene, fit_reference, make_scene
+from tactile_bench.diagnose.shapley import ShapleyShare, shapley_shares
 from tactile_bench.diagnose.simulate import deterministic_geometry, lookup_for, render
 from tactile_bench.diagnose.stability import Stability
 from tactile_bench.diagnose.stability import check as check_stability
+from tactile_bench.effects import EFFECT_ORDER
 from tactile_bench.errors import TactileBenchError
 
 MIN_SHARE = 0.02  # a selected effect removes at least this share of the initial gap
@@ -93,6 +99,8 @@ class WhichResult:
     set_aside_as_denoising: list[str] = field(default_factory=list)
     # the first round re-run on the depth split; None when not run
     stability: Stability | None = None
+    # each selected effect's Shapley share of the initial held-out gap, whatever the order
+    shapley: list[ShapleyShare] = field(default_factory=list)
 
     @property
     def unstable(self) -> bool:
@@ -112,6 +120,7 @@ class WhichResult:
         d["singles"] = [r.to_dict() for r in self.singles]
         d["background"] = self.background.to_dict() if self.background else None
         d["stability"] = self.stability.to_dict() if self.stability else None
+        d["shapley"] = [s.to_dict() for s in self.shapley]
         d["unstable"], d["flagged"] = self.unstable, self.flagged
         return d
 
@@ -175,6 +184,8 @@ def explain_gap(
     selected, current = _joint_if_better(problem, chosen.selected, chosen.current)
     result = _answer(problem, names, singles, chosen, selected, current)
     result.background, result.background_note = _background_line(data, held_idx, problem)
+    gaps = _coalition_gaps(problem, fits, selected, current)
+    result.shapley = shapley_shares(list(selected), gaps, problem.seed)
     if stability:
         result.stability = _depth_split_check(data, names, chosen.ranking, seed)
     return result
@@ -424,6 +435,36 @@ def _answer(
         sim_optics=reference.sim_optics.report() if reference else {},
         set_aside_as_denoising=[n for n in dict.fromkeys(chosen.set_aside) if n not in selected],
     )
+
+
+def _coalition_gaps(
+    problem: GapProblem,
+    fits: Options,
+    selected: dict[str, dict[str, float]],
+    current: torch.Tensor,
+) -> dict[frozenset[str], torch.Tensor]:
+    """The held-out gap per pair of every subset of ``selected``: none is the plain sim, all
+    is the selection (``current``), a single effect its single fit; the others refitted on
+    the fit split on their own (``_refit_coalition``)."""
+    names = sorted(selected)
+    gaps = {frozenset(): problem.gap0, frozenset(names): current}
+    for k in range(1, len(names)):
+        for coalition in itertools.combinations(names, k):
+            if k == 1:
+                gaps[frozenset(coalition)] = fits[coalition[0]][1]
+            else:
+                gaps[frozenset(coalition)] = _refit_coalition(problem, coalition)
+    return gaps
+
+
+def _refit_coalition(problem: GapProblem, names: Sequence[str]) -> torch.Tensor:
+    """Effects fitted one after the other in catalogue order (whatever order they were
+    selected in), then jointly if that fits better: their held-out gap per pair."""
+    effects: dict[str, dict[str, float]] = {}
+    for name in [n for n in EFFECT_ORDER if n in names]:
+        effects[name] = fit_candidate(name, *problem.fit, prior=effects or None, seed=problem.seed)
+    _, gap = _joint_if_better(problem, effects, model_gap(*problem.held, effects, problem.seed))
+    return gap
 
 
 def _background_line(
