@@ -4,7 +4,7 @@ interval, the rivals the held-out pairs cannot tell from it, and the effect the 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -92,8 +92,9 @@ def paired_difference_ci(
 SEPARATE_BY: dict[frozenset[str], str] = {
     frozenset({"geometry", "optics"}): "presses of one shape at several depths: the gel's "
     "geometry changes the contact's shape with depth, the optics only its colour",
-    frozenset({"geometry", "camera"}): "no-contact frames and flat presses: camera effects "
-    "act on them, gel geometry does not",
+    frozenset({"geometry", "camera"}): "the no-contact frame's texture against the sim's "
+    "own, and flat presses: a lens blurs all it sees, the gel's geometry changes only where "
+    "it is pressed",
     frozenset({"optics", "camera"}): "the no-contact frame and frames of a flat press: "
     "camera effects change them, the contact's optics do not",
     **{
@@ -148,9 +149,17 @@ def with_rivals(
             rivals.append(name)
     if not rivals:
         return row
-    acts_on = {get_candidate(row.effect).acts_on} | {get_candidate(r).acts_on for r in rivals}
+    return replace(
+        row, confusable_with=rivals, separate_by=separating_measurement(row.effect, rivals)
+    )
+
+
+def separating_measurement(effect: str, rivals: Sequence[str]) -> str:
+    """What would tell ``effect`` from ``rivals`` when they act on two parts of image
+    formation; else more pairs of other shapes and depths."""
+    acts_on = {get_candidate(effect).acts_on} | {get_candidate(r).acts_on for r in rivals}
     hint = SEPARATE_BY.get(frozenset(acts_on), "") if len(acts_on) == 2 else ""
-    return replace(row, confusable_with=rivals, separate_by=hint or ANY_SHAPE)
+    return hint or ANY_SHAPE
 
 
 @dataclass(frozen=True)

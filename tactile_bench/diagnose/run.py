@@ -125,6 +125,21 @@ def _where_before_after(held: PairedData, after: torch.Tensor) -> tuple[WhereRes
     return analyse_where(held), analyse_where(held_after)
 
 
+def _sample_images(
+    data: PairedData,
+    samples_idx: list[int],
+    effects: dict[str, dict[str, float]],
+    seed: int,
+    fit_idx: torch.Tensor,
+    steps: Steps,
+) -> dict[str, torch.Tensor]:
+    """The before/after figure's pairs: sim, real, and sim + the selected effects."""
+    after = data.sim[samples_idx]
+    if effects:
+        after = steps.apply_effects(data, effects, torch.tensor(samples_idx), seed, fit_idx)
+    return {"sim": data.sim[samples_idx], "real": data.real[samples_idx], "after": after}
+
+
 def diagnose(
     data: PairedData,
     out_dir: str | Path,
@@ -170,14 +185,7 @@ def diagnose(
         after = steps.apply_effects(data, effects, held_idx, seed, fit_idx)
         held_where = _where_before_after(data.subset(held_idx), after)
     samples_idx = pick_samples(data, held_idx, seed=seed)
-    sample_images = {
-        "sim": data.sim[samples_idx],
-        "real": data.real[samples_idx],
-        "after": steps.apply_effects(data, effects, torch.tensor(samples_idx), seed, fit_idx)
-        if effects
-        else data.sim[samples_idx],
-    }
-    row_labels = [f"{data.labels[i] or '-'} / {data.names[i]}" for i in samples_idx]
+    sample_images = _sample_images(data, samples_idx, effects, seed, fit_idx, steps)
     result = Diagnosis(
         n_pairs=len(data),
         size=data.size,
@@ -192,6 +200,7 @@ def diagnose(
     )
     timing["samples"] = time.perf_counter() - t
     t = time.perf_counter()
+    row_labels = [f"{data.labels[i] or '-'} / {data.names[i]}" for i in samples_idx]
     paths = write_report(out_dir, result, sample_images, row_labels)
     timing["report"] = time.perf_counter() - t
     timing["total"] = time.perf_counter() - start

@@ -10,6 +10,9 @@
    ``MIN_SHARE`` of the initial gap (of that gap less the model's own randomness once camera
    noise is in) and its bootstrap interval stays above 0;
 4. ``_joint_if_better``: the selection's differentiable parameters refitted together;
+   ``_swapped_rivals``: a strong rival put in place of each selected effect, the others
+   kept: one that explains as much there is confusable with it (a noise that masked it in
+   the round the effect was picked in is modelled by then);
 5. ``_answer``: what is left above the floor no model can remove, as a share of the initial
    gap (``unexplained``, flagged above ``FLAG_UNEXPLAINED``);
 6. ``_coalition_gaps``: every subset of the selection refitted on its own, for each effect's
@@ -45,7 +48,14 @@ from tactile_bench.diagnose.gapfit import (
 )
 from tactile_bench.diagnose.noise import FrameNoise, frame_noise
 from tactile_bench.diagnose.paired import PairedData
-from tactile_bench.diagnose.ranking import DenoiseCheck, EffectFit, Options, pick_effect
+from tactile_bench.diagnose.ranking import (
+    DenoiseCheck,
+    EffectFit,
+    Options,
+    paired_difference_ci,
+    pick_effect,
+    separating_measurement,
+)
 from tactile_bench.diagnose.scene import PairScene, fit_reference, make_scene
 from tactile_bench.diagnose.shapley import ShapleyShare, shapley_shares
 from tactile_bench.diagnose.simulate import deterministic_geometry, lookup_for, render
@@ -60,6 +70,7 @@ MAX_ROUNDS = 4
 MAX_REFITS = 4  # candidates refitted with the selected ones each round, best singles first
 SCREEN_SHARE = 0.25  # ... plus any whose single fit still removes this share of what is left
 SCREEN_PAIRS = 64
+SWAP_RIVALS = 2  # the best single fits outside the selection tried in place of each effect
 NOISY_SIM = 0.5  # grey levels: sim frames noisier than this, frame to frame, are noisy
 BACKGROUND_LINE = "measured_background"
 Split = tuple[PairScene, Target]
@@ -182,6 +193,7 @@ def explain_gap(
     singles, fits = _fit_singles(problem, names, progress)
     chosen = _select(problem, names, singles, fits, max_rounds, progress)
     selected, current = _joint_if_better(problem, chosen.selected, chosen.current)
+    chosen = replace(chosen, ranking=_swapped_rivals(problem, singles, chosen.ranking, current))
     result = _answer(problem, names, singles, chosen, selected, current)
     result.background, result.background_note = _background_line(data, held_idx, problem)
     gaps = _coalition_gaps(problem, fits, selected, current)
@@ -391,6 +403,39 @@ def _joint_if_better(
     if float(fit_gaps[0]) < float(fit_gaps[1]):
         return joint, model_gap(*problem.held, joint, problem.seed)
     return selected, current
+
+
+def _swapped_rivals(
+    problem: GapProblem,
+    singles: Sequence[EffectFit],
+    ranking: list[EffectFit],
+    current: torch.Tensor,
+) -> list[EffectFit]:
+    """The ranking with, for each selected effect, the rivals that explain as much in its
+    place: the selection with the rival instead of it refitted on the fit split
+    (``_refit_coalition``), its held-out gap not worse than the selection's by the paired
+    bootstrap 95% interval. Tried for the ``SWAP_RIVALS`` best single fits outside the
+    selection that alone remove ``SCREEN_SHARE`` of the gap, when two or more are selected
+    (one alone was compared with every rival in its round)."""
+    chosen = [row.effect for row in ranking]
+    if len(chosen) < 2:
+        return ranking
+    strong = [r.effect for r in singles if r.effect not in chosen and r.shrink >= SCREEN_SHARE]
+    out = []
+    for row in ranking:
+        rivals = [n for n in strong if n not in row.confusable_with][:SWAP_RIVALS]
+        found = []
+        for rival in rivals:
+            swapped = _refit_coalition(problem, [*(n for n in chosen if n != row.effect), rival])
+            if paired_difference_ci(problem.gap0, current, swapped, problem.seed)[0] <= 0:
+                found.append(rival)
+        if found:
+            rivals = [*row.confusable_with, *found]
+            row = replace(
+                row, confusable_with=rivals, separate_by=separating_measurement(row.effect, rivals)
+            )
+        out.append(row)
+    return out
 
 
 def _answer(
