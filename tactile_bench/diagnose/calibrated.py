@@ -180,8 +180,9 @@ class CalibratedTranslator(SimTranslator):
         )
         fit_idx, held_idx = stratified_split(labels, config.fit_fraction, config.seed)
         progress = bool((trainer or {}).get("enable_progress_bar", True))
-        # the depth-split check changes no selection, only what the report warns of: it
-        # would add to the fitting time without changing what is rendered
+        # the depth-split check, the swapped rivals and the Shapley shares change no
+        # selection, only what the report says: they would add to the fitting time without
+        # changing what is rendered
         which = explain_gap(
             data,
             fit_idx,
@@ -190,6 +191,7 @@ class CalibratedTranslator(SimTranslator):
             seed=config.seed,
             progress=progress,
             stability=False,
+            attribution=False,
         )
         effects = selected_effects(which)
         # what render needs later: the response lookup's fit pairs and the sim optics model,

@@ -181,11 +181,14 @@ def explain_gap(
     progress: bool = True,
     stability: bool = True,
     max_rounds: int = MAX_ROUNDS,
+    attribution: bool = True,
 ) -> WhichResult:
     """Fit every candidate on ``fit_idx``, score it on ``held_idx``, select the set that
     explains the gap, and report what it leaves unexplained (module docstring);
     ``stability``: also re-run the first round across press depths; ``max_rounds``: stop
-    selecting after this many effects."""
+    selecting after this many effects; ``attribution``: also the swapped rivals and the
+    Shapley shares (what a reader of the answer needs; a simulator built on the selection
+    does not)."""
     fit_idx = _check_split(data, fit_idx, "fit")
     held_idx = _check_split(data, held_idx, "held-out")
     names = _candidate_names(candidates)
@@ -193,11 +196,13 @@ def explain_gap(
     singles, fits = _fit_singles(problem, names, progress)
     chosen = _select(problem, names, singles, fits, max_rounds, progress)
     selected, current = _joint_if_better(problem, chosen.selected, chosen.current)
-    chosen = replace(chosen, ranking=_swapped_rivals(problem, singles, chosen.ranking, current))
+    if attribution:
+        chosen = replace(chosen, ranking=_swapped_rivals(problem, singles, chosen.ranking, current))
     result = _answer(problem, names, singles, chosen, selected, current)
     result.background, result.background_note = _background_line(data, held_idx, problem)
-    gaps = _coalition_gaps(problem, fits, selected, current)
-    result.shapley = shapley_shares(list(selected), gaps, problem.seed)
+    if attribution:
+        gaps = _coalition_gaps(problem, fits, selected, current)
+        result.shapley = shapley_shares(list(selected), gaps, problem.seed)
     if stability:
         result.stability = _depth_split_check(data, names, chosen.ranking, seed)
     return result
