@@ -84,7 +84,7 @@ def _ranking_lines(which: WhichResult) -> list[str]:
             "  whatever the order (Shapley share of the held-out gap over every order of the "
             "selected effects, 95% CI):"
         )
-        for s in which.shapley:
+        for s in sorted(which.shapley, key=lambda s: -s.share):
             lines.append(f"  {s.effect:<20} share  {s.share:.3f} [{s.ci_low:.3f}, {s.ci_high:.3f}]")
     if which.set_aside_as_denoising:
         lines.append(

@@ -307,7 +307,10 @@ def render_html(result: Diagnosis, figures: Mapping[str, str]) -> str:
             "<h3>each selected effect's share whatever the order (Shapley value over every "
             "order of the selected effects, each subset refitted; shares of the held-out gap, "
             "summing to what the selection removes)</h3>"
-            + _table([s.to_dict() for s in which.shapley], ["effect", "share", "ci_low", "ci_high"])
+            + _table(
+                [s.to_dict() for s in sorted(which.shapley, key=lambda s: -s.share)],
+                ["effect", "share", "ci_low", "ci_high"],
+            )
         )
     parts.append(f"<p>unexplained share of the held-out gap: {_fmt(which.unexplained)}</p>")
     singles = [r.to_dict() for r in which.singles]

@@ -309,8 +309,10 @@ def _select(
         state = _add(problem, state, pick.row, unmasked)
         if float(state.current.mean()) < state.threshold:  # nothing left that could pass
             break
-        rest = [n for n in pool if n not in state.selected]
-        if not unmasked:
+        if unmasked:  # every single fit was judged against a gap the noise dominated
+            rest = [n for n in names if n not in state.selected]
+        else:
+            rest = [n for n in pool if n not in state.selected]
             kept = _worth_refitting(problem, rest, fits, state.selected)
             rest = kept + [n for n in rest if n in noise_like and n not in kept]
         state = replace(state, options=_fit_each(problem, rest, state.selected, progress))
@@ -349,7 +351,9 @@ def _refit_pool(
 
     A candidate that alone removes nothing is not refitted; one below the threshold still is
     (screened first, ``_worth_refitting``): camera noise that dominates the first gap masks a
-    deterministic effect's single share until the noise is modelled. On a noisy sim,
+    deterministic effect's single share until the noise is modelled. In the round after the
+    noise is selected every candidate is refitted (``_select``): a lens blur under noise
+    removes nothing alone, its texture lost in the noise's. On a noisy sim,
     per-frame camera noise stays in play whatever its single fit did: it removes nothing
     alone, but an effect that smooths the sim's own noise (a blur) leaves a texture only the
     noise restores. A noise-free sim does not ask for it: there the noise would only patch
