@@ -13,6 +13,7 @@ from tactile_bench.diagnose import foreign
 from tactile_bench.diagnose.foreign import (
     FOREIGN_PLANTS,
     SHADINGS,
+    SINGLE_PLANTS,
     VARIANTS,
     foreign_pairs,
     shared_real_available,
@@ -72,12 +73,28 @@ def test_imports_none_of_the_projects_renderer_code() -> None:
 
 
 def test_expected_names_are_catalogue_effects() -> None:
-    for plant in FOREIGN_PLANTS.values():
+    for name in SINGLE_PLANTS:
+        plant = FOREIGN_PLANTS[name]
         assert plant.expected is None or plant.expected in EFFECTS, plant
         assert plant.kind == ("out_of_catalogue" if plant.expected is None else "single")
+        assert plant.parts == (name,)
     assert FOREIGN_PLANTS["barrel"].expected is None
     assert FOREIGN_PLANTS["chromatic"].expected is None
-    assert sum(p.expected is not None for p in FOREIGN_PLANTS.values()) == 9
+    assert sum(FOREIGN_PLANTS[p].expected is not None for p in SINGLE_PLANTS) == 9
+
+
+def test_a_lens_blur_blurs_the_no_contact_frame_and_adds_noise_after(bank) -> None:
+    """The combined plants are their parts applied together: the lens blur's no-contact
+    frame is the blur plant's (the same lens), its frames the blur's plus noise."""
+    assert FOREIGN_PLANTS["lens_blur"].parts == ("blur", "noise")
+    assert FOREIGN_PLANTS["blur_elastic"].named_as == ("defocus_blur", "elastic_spread")
+    params = _params("lens_blur")
+    sigma = {"sigma_px": params["sigma_px"]}
+    lens = _pairs(bank, "lens_blur", params=params)
+    blur = _pairs(bank, "blur", params=sigma)
+    assert torch.equal(lens.background, blur.background)  # the no-contact frame: blurred
+    noise = (lens.real - blur.real).std()
+    assert 1.0 < float(noise) < 3 * params["read_noise"] + 5  # noise after the blur
 
 
 @pytest.mark.parametrize("name", list(FOREIGN_PLANTS))
