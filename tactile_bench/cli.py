@@ -471,7 +471,7 @@ def main(args: list[str] | None = None) -> int:
     # Idle OpenMP threads sleep instead of spinning: on a busy laptop core, spinning made
     # 2 threads slower than 1 (bench: docs/results/bench.md). Read when torch first loads,
     # which the parser does not do. A command of many small ops sets None: the runtime's
-    # spin-then-sleep (diagnose.commands.FIT_MANY_SMALL_OPS).
+    # spin-then-sleep (diagnose.commands.KEEP_OMP_WAIT_POLICY).
     policy = getattr(ns, "omp_wait_policy", "PASSIVE")
     if policy:
         os.environ.setdefault("OMP_WAIT_POLICY", policy)
