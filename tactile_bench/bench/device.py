@@ -23,6 +23,7 @@ import torch
 
 from tactile_bench.bench.timing import polling
 from tactile_bench.classify.module import BrailleClassifier
+from tactile_bench.data.synthetic import tiny_pairs
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.hardware import describe_device, resolve_precision
 from tactile_bench.translators import create_translator
@@ -58,17 +59,6 @@ class DeviceBenchSizes:
             classifier_batch=64,
             repeats=1,
         )
-
-
-def _pairs(n: int, size: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Synthetic (depth mm, foreground) pairs: a pressed dome each (speed only, no quality)."""
-    gen = torch.Generator().manual_seed(seed)
-    axis = torch.linspace(-1, 1, size)
-    ys, xs = torch.meshgrid(axis, axis, indexing="ij")
-    centres = torch.rand(n, 2, generator=gen) - 0.5
-    r2 = (xs - centres[:, 0, None, None]) ** 2 + (ys - centres[:, 1, None, None]) ** 2
-    depth = (0.8 - 4.0 * r2).clamp(min=0).unsqueeze(1)
-    return depth, 0.5 + 0.2 * depth.expand(-1, 3, -1, -1)
 
 
 def check_device(name: str) -> torch.device:
@@ -140,7 +130,7 @@ def _sampling_row(
 ) -> dict[str, Any]:
     size = 64
     translator = create_translator("diffusion", {"preset": preset, **settings}).to(device).eval()
-    depth, _ = _pairs(n=n, size=size, seed=1)
+    depth, _ = tiny_pairs(n=n, size=size, seed=1)
     depth = depth.to(device)
 
     def run() -> None:
@@ -177,7 +167,7 @@ def _train_row(
 
 def _training_rows(device: torch.device, sizes: DeviceBenchSizes) -> list[dict[str, Any]]:
     rows = []
-    depth, fg = _pairs(n=sizes.train_batch, size=sizes.image_size, seed=2)
+    depth, fg = tiny_pairs(n=sizes.train_batch, size=sizes.image_size, seed=2)
     depth, fg = depth.to(device), fg.to(device)
     for preset in sizes.presets:
         diffusion = create_translator("diffusion", {"preset": preset}).to(device).train()

@@ -138,7 +138,6 @@ class CalibratedTranslator(SimTranslator):
 
     name = "calibrated"
     Config = CalibratedConfig
-    computes_on_cpu = True
 
     def __init__(self, config: CalibratedConfig | dict[str, Any] | None = None) -> None:
         super().__init__(config)

@@ -80,9 +80,6 @@ class Translator(L.LightningModule):
     name: ClassVar[str] = ""
     Config: ClassVar[type[TranslatorConfig]] = TranslatorConfig
     trainable: ClassVar[bool] = True
-    #: True where ``translate`` computes on the CPU whatever the translator's device (its
-    #: output still lands on the input's device)
-    computes_on_cpu: ClassVar[bool] = False
 
     def __init__(self, config: TranslatorConfig | dict[str, Any] | None = None) -> None:
         super().__init__()

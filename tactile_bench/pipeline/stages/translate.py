@@ -94,6 +94,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         background = (
             split.sim_background if config.background == "sim" else split.real_background
         ).float()
+        background_there = background.to(device)
         chunks = []
         with tqdm(
             total=len(split),
@@ -104,7 +105,7 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             for i in range(0, len(split), chunk):
                 depth = split.depth[i : i + chunk].to(device)
                 # stored as uint8 chunk by chunk: a float copy of a 10k-image set is 0.5 GB
-                image = translator.translate(depth, background.to(device), generator)
+                image = translator.translate(depth, background_there, generator)
                 chunks.append(to_uint8(image).cpu())
                 bar.update(len(depth))
         images = torch.cat(chunks)
