@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from tactile_bench.diagnose.candidates import DEFAULT_CANDIDATES
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.validate import planted_pairs
 from tactile_bench.diagnose.which import explain_gap
 from tactile_bench.effects.kernels import area_pool
@@ -34,7 +34,7 @@ PLANT = {"defocus_blur": {"sigma_mm": 0.8830999732017517}}  # the own suite's dr
 RADII_MM = (0.75, 1.5, 3.0, 6.0)
 
 
-def sphere_pairs(planted: dict, n: int, seed: int) -> PairedData:
+def sphere_pairs(planted: dict, n: int, seed: int) -> DiagnosisPairs:
     """``n`` sphere presses rendered by the plain surrogate (sim) and with ``planted``."""
     gel = GelSpec(size=64)
     side = gel.size * gel.oversample
@@ -55,7 +55,7 @@ def sphere_pairs(planted: dict, n: int, seed: int) -> PairedData:
     sim_sensor, real_sensor = SurrogateDigit({}), SurrogateDigit(planted)
     sim = sim_sensor.render_surface(height, gel, torch.Generator().manual_seed(seed + 1))
     real = real_sensor.render_surface(height, gel, torch.Generator().manual_seed(seed + 2))
-    return PairedData(
+    return DiagnosisPairs(
         depth=area_pool(height.clamp(min=0), gel.oversample),  # as the camera's pixels
         sim=sim.round(),
         real=real.round(),

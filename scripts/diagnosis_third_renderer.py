@@ -31,7 +31,7 @@ import torch
 from PIL import Image
 from scipy import ndimage
 
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.which import explain_gap
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.geometry.contacts import classifier_test_protocol
@@ -114,7 +114,7 @@ def _sag(depth: np.ndarray, length_px: float, skirt: float) -> np.ndarray:
 
 def third_renderer_pairs(
     case: str, n: int, seed: int, variant: str, read_noise: float, noisy_sim: bool = False
-) -> PairedData:
+) -> DiagnosisPairs:
     """``n`` braille contacts: sim by the plain renderer, real with ``case`` planted."""
     _, p = CASES[case]
     bank = build_bank(CHARACTERS, BrailleSpec())
@@ -179,7 +179,7 @@ def third_renderer_pairs(
     def tensor(a: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(a)).float()
 
-    return PairedData(
+    return DiagnosisPairs(
         depth=depth_t.float(),
         sim=tensor(sim),
         real=tensor(real),

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from tactile_bench.data.ball_presses import TAXIM_SENSORS, BallPresses, load_ball_presses
 from tactile_bench.data.corpus import CorpusPairs, load_pairs
 from tactile_bench.data.ycb_slide import build_ycb_slide_standin
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.metrics.encoder import fit_encoder, kid
 from tactile_bench.metrics.image import ssim_mse
@@ -104,7 +104,7 @@ def ground_profile(profile: str, size: int = 64, seed: int = 0, figure: Path | N
     }
 
 
-def press_pairs(sensor: str, size: int = 64) -> PairedData:
+def press_pairs(sensor: str, size: int = 64) -> DiagnosisPairs:
     """Every press of ``sensor`` as a diagnosis pair: depth, our simulator's image, the real frame.
 
     The simulator's image is TACTO's recipe: the simple simulator's noise-free colour change
@@ -113,7 +113,7 @@ def press_pairs(sensor: str, size: int = 64) -> PairedData:
     presses = load_ball_presses(sensor, size)
     gel = GelSpec(*presses.gel_mm, size=size)
     sim = sim_render(presses.depth, presses.background, gel)
-    return PairedData(
+    return DiagnosisPairs(
         depth=presses.depth,
         sim=sim,
         real=presses.real,

@@ -16,7 +16,7 @@ from tactile_bench.data.braille import BrailleSet
 from tactile_bench.data.corpus import CorpusPairs
 from tactile_bench.data.paired import Pairs
 from tactile_bench.data.pixels import image_to_foreground
-from tactile_bench.diagnose.paired import PairedData, from_braille_set
+from tactile_bench.diagnose.paired import DiagnosisPairs, from_braille_set
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry import Poses
 
@@ -220,21 +220,23 @@ def test_pair_set_subsets_and_foregrounds_through_the_base() -> None:
 def test_paired_data_subsets_and_foregrounds_through_the_base() -> None:
     toy = _toy()
     real_bg = toy.real_background.float()
-    data = PairedData(
+    data = DiagnosisPairs(
         toy.depth, toy.sim.float(), toy.real.float(), real_bg, None, list("abcde"), toy.names
     )
-    assert isinstance(data, Pairs) and PairedData.subset is Pairs.subset
+    assert isinstance(data, Pairs) and DiagnosisPairs.subset is Pairs.subset
     for idx in (torch.tensor([False, False, True, True, False]), [2, 3], slice(2, 4)):
         sub = data.subset(idx)  # a mask selects (it was once read as positions 0 and 1)
         assert sub.labels == ["c", "d"] and sub.names == ["p2", "p3"]
         assert torch.equal(sub.sim, toy.sim[2:4].float()) and sub.gel_mm == data.gel_mm
     assert torch.equal(data.foreground("real"), image_to_foreground(data.real, real_bg))
-    with pytest.raises(TactileBenchError, match="PairedData: no sim background in this set"):
+    with pytest.raises(TactileBenchError, match="DiagnosisPairs: no sim background in this set"):
         data.foreground("sim")
-    with pytest.raises(TactileBenchError, match=r"PairedData: background must be \(3,S,S\)"):
-        PairedData(toy.depth, data.sim, data.real, real_bg[None], None, data.labels, data.names)
-    with pytest.raises(TactileBenchError, match="PairedData: names must have one entry per pair"):
-        PairedData(toy.depth, data.sim, data.real, real_bg, None, data.labels, ["x"])
+    with pytest.raises(TactileBenchError, match=r"DiagnosisPairs: background must be \(3,S,S\)"):
+        DiagnosisPairs(toy.depth, data.sim, data.real, real_bg[None], None, data.labels, data.names)
+    with pytest.raises(
+        TactileBenchError, match="DiagnosisPairs: names must have one entry per pair"
+    ):
+        DiagnosisPairs(toy.depth, data.sim, data.real, real_bg, None, data.labels, ["x"])
 
 
 def _presses(**changes: Any) -> BallPresses:

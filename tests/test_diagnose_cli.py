@@ -15,7 +15,7 @@ import torch
 from tactile_bench.cli import main
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.diagnose.commands import summary_lines
-from tactile_bench.diagnose.paired import PairedData, load_paired, write_paired
+from tactile_bench.diagnose.paired import DiagnosisPairs, load_paired, write_paired
 from tactile_bench.diagnose.ranking import EffectFit
 from tactile_bench.diagnose.result import Diagnosis, Split
 from tactile_bench.diagnose.run import Steps, diagnose, stratified_split
@@ -37,11 +37,11 @@ def backend(monkeypatch: pytest.MonkeyPatch) -> list[str]:
 
 
 # ------------------------------------------------------------------ a stand-in for the steps
-def _offset(data: PairedData, idx: torch.Tensor) -> torch.Tensor:
+def _offset(data: DiagnosisPairs, idx: torch.Tensor) -> torch.Tensor:
     return (data.real[idx] - data.sim[idx]).mean((0, 2, 3))
 
 
-def _apply(data: PairedData, effects: dict, idx: torch.Tensor | None = None, *_: object):
+def _apply(data: DiagnosisPairs, effects: dict, idx: torch.Tensor | None = None, *_: object):
     sim = data.sim if idx is None else data.sim[idx]
     if "offset" in effects:
         p = effects["offset"]
@@ -49,7 +49,7 @@ def _apply(data: PairedData, effects: dict, idx: torch.Tensor | None = None, *_:
     return sim
 
 
-def _held_mse(data: PairedData, held_idx: torch.Tensor, effects: dict) -> float:
+def _held_mse(data: DiagnosisPairs, held_idx: torch.Tensor, effects: dict) -> float:
     return float((data.real[held_idx] - _apply(data, effects, held_idx)).square().mean())
 
 

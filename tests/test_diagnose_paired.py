@@ -14,7 +14,7 @@ from PIL import Image
 
 from tactile_bench.data.corpus import CorpusPairs
 from tactile_bench.diagnose.paired import (
-    PairedData,
+    DiagnosisPairs,
     data_hash,
     detect_layout,
     dir_to_label,
@@ -26,7 +26,7 @@ from tactile_bench.errors import TactileBenchError
 from tests.data.make_layouts import make_braille_layout
 
 
-def tiny_pairs(n: int = 12, size: int = 32, seed: int = 0) -> PairedData:
+def tiny_pairs(n: int = 12, size: int = 32, seed: int = 0) -> DiagnosisPairs:
     """``n`` pairs over labels A, B, # with one round dent each; real = sim + an offset."""
     g = torch.Generator().manual_seed(seed)
     yy, xx = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
@@ -39,12 +39,12 @@ def tiny_pairs(n: int = 12, size: int = 32, seed: int = 0) -> PairedData:
     real = (sim + 10).clamp(0, 255)
     background = torch.full((3, size, size), 120.0)
     labels = [("A", "B", "#")[i % 3] for i in range(n)]
-    return PairedData(
+    return DiagnosisPairs(
         depth, sim, real, background, background - 5, labels, [f"p{i:02d}" for i in range(n)]
     )
 
 
-def _by_key(data: PairedData) -> dict[tuple[str, str], int]:
+def _by_key(data: DiagnosisPairs) -> dict[tuple[str, str], int]:
     return {
         (lab, name): i for i, (lab, name) in enumerate(zip(data.labels, data.names, strict=True))
     }
@@ -71,7 +71,9 @@ def test_round_trip(tmp_path: Path) -> None:
 
 def test_unlabelled_and_no_sim_background(tmp_path: Path) -> None:
     data = tiny_pairs(n=5)
-    data = PairedData(data.depth, data.sim, data.real, data.background, None, [""] * 5, data.names)
+    data = DiagnosisPairs(
+        data.depth, data.sim, data.real, data.background, None, [""] * 5, data.names
+    )
     root = write_paired(tmp_path / "u", data)
     assert (root / "depth" / "p00.png").is_file() and not (root / "sim_background.png").exists()
     back = load_paired(root)
@@ -92,7 +94,9 @@ def test_write_refuses_non_empty_and_leaves_nothing_on_error(tmp_path: Path) -> 
         write_paired(root, data)
     write_paired(root, data.subset([0, 1]), overwrite=True)
     assert len(load_paired(root)) == 2
-    bad = PairedData(data.depth, data.sim, data.real, data.background, None, ["A"] * 4, ["x"] * 4)
+    bad = DiagnosisPairs(
+        data.depth, data.sim, data.real, data.background, None, ["A"] * 4, ["x"] * 4
+    )
     with pytest.raises(TactileBenchError, match="twice"):
         write_paired(tmp_path / "q", bad)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p"]  # no temporary leftovers
@@ -117,7 +121,7 @@ def test_tactile_diffusion_pairs_on_several_frames_warn_that_the_first_serves_al
     caplog: pytest.LogCaptureFixture,
     second: int,
 ) -> None:
-    """``PairedData`` holds one no-contact frame: pairs taken on more than one are warned of."""
+    """``DiagnosisPairs`` holds one no-contact frame: pairs taken on more than one are warned of."""
     from tactile_bench.data import tactile_diffusion
 
     load = tactile_diffusion.load_braille_pairs

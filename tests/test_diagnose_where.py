@@ -7,7 +7,7 @@ import time
 import pytest
 import torch
 
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.where import analyse_where, band_index, region_masks
 
 SIZE = 32
@@ -27,9 +27,9 @@ def _scene(n: int = 24, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, list
 
 def _data(
     depth: torch.Tensor, sim: torch.Tensor, real: torch.Tensor, labels: list[str]
-) -> PairedData:
+) -> DiagnosisPairs:
     bg = torch.full((3, SIZE, SIZE), 100.0)
-    return PairedData(depth, sim, real, bg, None, labels, [str(i) for i in range(len(labels))])
+    return DiagnosisPairs(depth, sim, real, bg, None, labels, [str(i) for i in range(len(labels))])
 
 
 def _shares(result, axis: str) -> dict[str, float]:
@@ -119,7 +119,7 @@ def test_fast_on_a_thousand_pairs() -> None:
     depth = torch.zeros(n, 1, 64, 64)
     depth[:, :, 20:30, 20:30] = 0.5
     sim = torch.rand(n, 3, 64, 64, generator=g) * 255
-    data = PairedData(depth, sim, sim + 1, sim[0], None, ["x"] * n, [str(i) for i in range(n)])
+    data = DiagnosisPairs(depth, sim, sim + 1, sim[0], None, ["x"] * n, [str(i) for i in range(n)])
     start = time.perf_counter()
     analyse_where(data)
     assert time.perf_counter() - start < 15

@@ -10,7 +10,7 @@ import torch
 from tactile_bench.diagnose import gapfit
 from tactile_bench.diagnose.candidates import CANDIDATES, DEFAULT_CANDIDATES, get_candidate
 from tactile_bench.diagnose.gapfit import Target, fit_candidate, model_gap, pair_gap
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.ranking import (
     EffectFit,
     paired_difference_ci,
@@ -35,7 +35,7 @@ def bank():
     return build_bank(("A", "L", "#"), BrailleSpec())
 
 
-def _pairs(bank, planted: dict, n: int = 24, seed: int = 3) -> PairedData:
+def _pairs(bank, planted: dict, n: int = 24, seed: int = 3) -> DiagnosisPairs:
     return planted_pairs(bank, planted, n, seed, SIZE)
 
 

@@ -1,6 +1,6 @@
 """The one base of the paired-data containers: sim and real images of the same contacts.
 
-``data.braille.BrailleSet``, ``data.corpus.CorpusPairs``, ``diagnose.paired.PairedData`` and
+``data.braille.BrailleSet``, ``data.corpus.CorpusPairs``, ``diagnose.paired.DiagnosisPairs`` and
 ``data.ball_presses.BallPresses`` (real presses only) share a core: gel depth (N,1,S,S) mm,
 sim and real images (N,3,S,S) and the no-contact frames (3,S,S) they were taken on.
 ``Pairs`` checks those shapes, counts and subsets the pairs and makes their foregrounds

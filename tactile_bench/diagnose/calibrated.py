@@ -33,7 +33,7 @@ from lightning.pytorch.loggers import Logger
 from pydantic import Field, field_validator
 
 from tactile_bench.diagnose.candidates import get_candidate
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.report import jsonable
 from tactile_bench.diagnose.run import MIN_PAIRS, selected_effects, stratified_split
 from tactile_bench.diagnose.scene import (
@@ -174,7 +174,7 @@ class CalibratedTranslator(SimTranslator):
         real = foreground_to_image(foreground, background)
         n = len(depth)
         labels = area_strata(depth, config.strata)
-        data = PairedData(
+        data = DiagnosisPairs(
             depth, sim, real, background, None, labels, [f"{i:05d}" for i in range(n)]
         )
         fit_idx, held_idx = stratified_split(labels, config.fit_fraction, config.seed)
@@ -271,7 +271,7 @@ class CalibratedTranslator(SimTranslator):
             lookups=self._cache,
         )
         return make_scene(
-            PairedData(depth, sim, sim, background, None, names, names), None, reference
+            DiagnosisPairs(depth, sim, sim, background, None, names, names), None, reference
         )
 
     def _model_foreground(self, depth: torch.Tensor, generator: torch.Generator) -> torch.Tensor:

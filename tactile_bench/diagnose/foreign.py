@@ -25,7 +25,7 @@ import torch
 from PIL import Image
 from scipy import ndimage
 
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import classifier_test_protocol
 from tactile_bench.sensor.depth import GelSpec, render_depth
@@ -373,7 +373,7 @@ def foreign_pairs(
     shading: str = "lambert",
     variant: str = "own",
     real_dir: Path | None = None,
-) -> PairedData:
+) -> DiagnosisPairs:
     """``n`` braille contacts (poses as ``validate.planted_pairs``): sim by the foreign
     renderer, real by it with ``plant`` at ``params`` and the real camera (seeded)."""
     _check(plant, params, shading, variant)
@@ -394,7 +394,7 @@ def foreign_pairs(
     def tensor(a: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(a)).float()
 
-    return PairedData(
+    return DiagnosisPairs(
         depth=depth_t.float(),
         sim=tensor(sim),
         real=tensor(np.rint(real)),

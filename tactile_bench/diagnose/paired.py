@@ -77,7 +77,7 @@ MAX_ASPECT_LOG_RATIO = math.log(1.1)
 
 
 @dataclass
-class PairedData(Pairs):
+class DiagnosisPairs(Pairs):
     """N paired contacts, all as float tensors.
 
     depth: (N, 1, S, S) gel penetration in mm (>= 0), at the image size S.
@@ -293,7 +293,7 @@ def _frame_sizes(root: Path, firsts: dict[str, Path]) -> dict[str, tuple[int, in
     return sizes
 
 
-def _load_layout(root: Path, size: int | None = None) -> PairedData:
+def _load_layout(root: Path, size: int | None = None) -> DiagnosisPairs:
     """The paired layout. Each part's frames share one size; the parts may differ (a
     renderer's 120 x 160 beside a camera's 240 x 320): each frame is resized on its own."""
     listings = {part: _listing(root / part) for part in PARTS}
@@ -337,7 +337,7 @@ def _load_layout(root: Path, size: int | None = None) -> PairedData:
     background = read_rgb(root / "background.png", frames["real"], side)
     sim_bg_path = root / "sim_background.png"
     sim_bg = read_rgb(sim_bg_path, frames["sim"], side) if sim_bg_path.exists() else None
-    return PairedData(
+    return DiagnosisPairs(
         torch.stack(depth),
         torch.stack(sim),
         torch.stack(real),
@@ -366,7 +366,7 @@ def read_gel(root: Path) -> tuple[float, float]:
     return gel
 
 
-def _load_tactile_diffusion(base: Path, size: int) -> PairedData:
+def _load_tactile_diffusion(base: Path, size: int) -> DiagnosisPairs:
     """The release's fine-tuning pairs; sim rendered noise-free over the simulator's background."""
     from tactile_bench.data.tactile_diffusion import load_braille_pairs
     from tactile_bench.geometry.braille import CHARACTERS
@@ -386,7 +386,7 @@ def _load_tactile_diffusion(base: Path, size: int) -> PairedData:
         names = [f"{i:05d}" for i in range(len(pairs.depth))]
     sim_bg = sim_background(size)
     sim = SimOptics().render(pairs.depth, sim_bg, None, gel).round().clamp(0, 255)
-    return PairedData(
+    return DiagnosisPairs(
         depth=pairs.depth.float(),
         sim=sim,
         real=pairs.real.float(),
@@ -398,7 +398,7 @@ def _load_tactile_diffusion(base: Path, size: int) -> PairedData:
 
 
 def _first_background(pairs: CorpusPairs, base: Path) -> torch.Tensor:
-    """The first pair's no-contact frame, which ``PairedData`` (one frame for all) keeps.
+    """The first pair's no-contact frame, which ``DiagnosisPairs`` (one frame for all) keeps.
 
     Warns when the pairs were taken on more than one distinct frame: the others' foregrounds
     are then measured against a frame they were not recorded on.
@@ -415,7 +415,7 @@ def _first_background(pairs: CorpusPairs, base: Path) -> torch.Tensor:
     return pairs.real_background[pairs.real_bg_index[0]]
 
 
-def load_paired(root: str | os.PathLike, size: int | None = None) -> PairedData:
+def load_paired(root: str | os.PathLike, size: int | None = None) -> DiagnosisPairs:
     """Read ``root`` in the paired layout or the Tactile-Diffusion braille layout, as
     ``size`` x ``size`` images (``working_side`` for the paired layout when None; the
     Tactile-Diffusion frames are area-resized to 64 then, like the paper's)."""
@@ -436,7 +436,7 @@ def _rgb_u8(image: torch.Tensor) -> np.ndarray:
     return to_uint8(image).permute(1, 2, 0).numpy()
 
 
-def write_paired(root: str | os.PathLike, data: PairedData, overwrite: bool = False) -> Path:
+def write_paired(root: str | os.PathLike, data: DiagnosisPairs, overwrite: bool = False) -> Path:
     """Write ``data`` in the paired layout, atomically (a temporary folder renamed into place).
 
     Depth is rounded to whole micrometres (uint16, so at most 65.535 mm); images to uint8.
@@ -490,7 +490,7 @@ def write_paired(root: str | os.PathLike, data: PairedData, overwrite: bool = Fa
 
 
 # ----------------------------------------------------------------------------- helpers
-def data_hash(data: PairedData) -> str:
+def data_hash(data: DiagnosisPairs) -> str:
     """Content hash of the pairs (as 8-bit images and whole micrometres), for reports."""
     digest = hashlib.sha256()
     digest.update((data.depth * UM_PER_MM).round().to(torch.int32).numpy().tobytes())
@@ -503,7 +503,7 @@ def data_hash(data: PairedData) -> str:
     return digest.hexdigest()
 
 
-def from_braille_set(bset: object, chars: Sequence[str]) -> PairedData:
+def from_braille_set(bset: object, chars: Sequence[str]) -> DiagnosisPairs:
     """A ``data.braille.BrailleSet`` as paired data; labels are the characters ``chars``."""
     from tactile_bench.data.braille import BrailleSet
 
@@ -514,7 +514,7 @@ def from_braille_set(bset: object, chars: Sequence[str]) -> PairedData:
         raise TactileBenchError(
             f"braille set: label {max(labels)} outside the {len(chars)} characters {''.join(chars)}"
         )
-    return PairedData(
+    return DiagnosisPairs(
         depth=bset.depth.float().clamp(min=0),
         sim=bset.sim.float(),
         real=bset.real.float(),

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from tactile_bench.diagnose.paired import PairedData, data_hash
+from tactile_bench.diagnose.paired import DiagnosisPairs, data_hash
 from tactile_bench.diagnose.report import jsonable, write_report
 from tactile_bench.diagnose.result import Diagnosis, Sample, Split
 from tactile_bench.diagnose.shrink import HowFar, how_far
@@ -66,7 +66,7 @@ def stratified_split(
 
 
 def pick_samples(
-    data: PairedData, held: torch.Tensor, k: int = N_SAMPLES, seed: int = 0
+    data: DiagnosisPairs, held: torch.Tensor, k: int = N_SAMPLES, seed: int = 0
 ) -> list[int]:
     """``k`` held-out pairs for the before/after figure, as many labels as possible."""
     rng = np.random.default_rng(seed + 1)
@@ -117,16 +117,18 @@ class Steps:
     apply_effects: Callable[..., torch.Tensor] = apply_effects
 
 
-def _where_before_after(held: PairedData, after: torch.Tensor) -> tuple[WhereResult, WhereResult]:
+def _where_before_after(
+    held: DiagnosisPairs, after: torch.Tensor
+) -> tuple[WhereResult, WhereResult]:
     """The "where" analysis of the held-out pairs with plain sim, then with ``after``."""
-    held_after = PairedData(
+    held_after = DiagnosisPairs(
         held.depth, after, held.real, held.background, None, held.labels, held.names
     )
     return analyse_where(held), analyse_where(held_after)
 
 
 def _sample_images(
-    data: PairedData,
+    data: DiagnosisPairs,
     samples_idx: list[int],
     effects: dict[str, dict[str, float]],
     seed: int,
@@ -141,7 +143,7 @@ def _sample_images(
 
 
 def diagnose(
-    data: PairedData,
+    data: DiagnosisPairs,
     out_dir: str | Path,
     downstream: bool = True,
     candidates: Sequence[str] | None = None,

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.effects import EffectContext
 from tactile_bench.effects.kernels import gaussian_blur
 from tactile_bench.sensor.depth import GelSpec
@@ -59,7 +59,7 @@ class FitReference:
     lookups: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
 
 
-def fit_reference(data: PairedData, fit_idx: torch.Tensor) -> FitReference:
+def fit_reference(data: DiagnosisPairs, fit_idx: torch.Tensor) -> FitReference:
     """The reference the fit split's first ``LOOKUP_PAIRS`` pairs lend every scene."""
     fit = data.subset(torch.as_tensor(fit_idx, dtype=torch.long)[:LOOKUP_PAIRS])
     fit_bg = (fit.sim_background if fit.sim_background is not None else fit.background).float()
@@ -156,7 +156,7 @@ class PairScene:
 
 
 def make_scene(
-    data: PairedData,
+    data: DiagnosisPairs,
     idx: torch.Tensor | None = None,
     reference: FitReference | None = None,
     onto_measured: bool = True,

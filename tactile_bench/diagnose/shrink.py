@@ -36,7 +36,7 @@ from typing import Any
 import torch
 
 from tactile_bench.data.pixels import image_to_foreground
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.scene import fit_reference, make_scene
 from tactile_bench.diagnose.simulate import apply_effects, render_background
 from tactile_bench.errors import TactileBenchError
@@ -165,7 +165,7 @@ class _Classifiers:
 
 
 def _classifiers(
-    data: PairedData, fit_idx: torch.Tensor, held_idx: torch.Tensor, seed: int
+    data: DiagnosisPairs, fit_idx: torch.Tensor, held_idx: torch.Tensor, seed: int
 ) -> _Classifiers | Skipped:
     from tactile_bench.classify import ClassifierConfig
 
@@ -220,7 +220,10 @@ def _accuracy(
 
 
 def _sim_plus(
-    data: PairedData, fit_idx: torch.Tensor, effects: Mapping[str, Mapping[str, float]], seed: int
+    data: DiagnosisPairs,
+    fit_idx: torch.Tensor,
+    effects: Mapping[str, Mapping[str, float]],
+    seed: int,
 ) -> torch.Tensor:
     """Foregrounds of the fit split's sim + ``effects`` over the candidate simulator's own
     rendering of the no-contact frame."""
@@ -230,7 +233,7 @@ def _sim_plus(
 
 
 def _downstream(
-    data: PairedData,
+    data: DiagnosisPairs,
     fit_idx: torch.Tensor,
     held_idx: torch.Tensor,
     effects: Mapping[str, Mapping[str, float]],
@@ -273,7 +276,7 @@ def _downstream(
 
 
 def accuracy_with_each(
-    data: PairedData,
+    data: DiagnosisPairs,
     fit_idx: torch.Tensor,
     held_idx: torch.Tensor,
     coalitions: Mapping[str, Mapping[str, Mapping[str, float]]],
@@ -291,7 +294,7 @@ def accuracy_with_each(
 
 
 def how_far(
-    data: PairedData,
+    data: DiagnosisPairs,
     fit_idx: torch.Tensor,
     held_idx: torch.Tensor,
     effects: Mapping[str, Mapping[str, float]],

@@ -28,7 +28,7 @@ from tactile_bench.diagnose.candidates import (
     PoseCandidate,
     get_candidate,
 )
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.scene import PairScene, fit_reference, make_scene
 from tactile_bench.effects import EFFECT_ORDER, EffectContext
 from tactile_bench.effects.optics import new_scene
@@ -174,7 +174,7 @@ def render_background(scene: PairScene, effects: Effects) -> torch.Tensor:
 
 
 def apply_effects(
-    data: PairedData,
+    data: DiagnosisPairs,
     effects: Effects,
     idx: torch.Tensor | None = None,
     seed: int = 0,

@@ -3,7 +3,7 @@
 ``python -m tactile_bench validate-diagnosis`` renders braille contacts twice with the
 surrogate: sim = ``SurrogateDigit(effects={})`` (no effect), real = the same contacts with the
 planted effect(s) at random parameters. The diagnosis (``which.explain_gap``) sees only a
-``PairedData`` (depth, sim, real, the real unit's no-contact frame, the plain one) and must
+``DiagnosisPairs`` (depth, sim, real, the real unit's no-contact frame, the plain one) and must
 name the planted effect. Cases: every candidate alone; two-effect plants; and effects outside
 the candidate set (a candidate removed from the set while planted), whose residual must be
 flagged rather than blamed on a wrong effect. Writes ``validation.json`` (summary + one row
@@ -43,7 +43,7 @@ from tactile_bench.diagnose.foreign import (
     foreign_pairs,
     shared_real_available,
 )
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.simulate import apply_effects
 from tactile_bench.diagnose.validate_report import summarise, write_report
 from tactile_bench.diagnose.which import BACKGROUND_LINE, WhichResult, explain_gap
@@ -206,7 +206,7 @@ def _told_apart_cases(seed: int) -> list[Case]:
 
 def planted_pairs(
     bank: HeightFieldBank, planted: dict[str, dict[str, float]], n: int, seed: int, size: int
-) -> PairedData:
+) -> DiagnosisPairs:
     """``n`` braille contacts: sim without effects, real with ``planted`` (seeded)."""
     gel = GelSpec(size=size)
     poses = classifier_test_protocol(bank.chars, n, seed)
@@ -214,7 +214,7 @@ def planted_pairs(
     streams = np.random.SeedSequence([seed, 11]).generate_state(2)
     sim = sim_sensor.render(bank, poses, gel, torch.Generator().manual_seed(int(streams[0])))
     real = real_sensor.render(bank, poses, gel, torch.Generator().manual_seed(int(streams[1])))
-    return PairedData(
+    return DiagnosisPairs(
         depth=render_depth(bank, poses, gel),
         sim=sim.round(),
         real=real.round(),
@@ -227,7 +227,7 @@ def planted_pairs(
 
 def case_pairs(
     case: Case, bank: HeightFieldBank, n: int, seed: int, size: int, index: int
-) -> tuple[PairedData, torch.Tensor, torch.Tensor]:
+) -> tuple[DiagnosisPairs, torch.Tensor, torch.Tensor]:
     """The ``index``-th case's ``n`` pairs and its random fit / held-out halves, seeded by
     (``seed``, ``index``): the same data and split in a full run and when a case is re-run
     alone (``scripts/diagnosis_depth_split.py``)."""

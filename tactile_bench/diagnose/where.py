@@ -27,7 +27,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 
 CONTACT_MM = 0.01  # 10 um of penetration: below it the gel is taken as untouched
 BAND_EDGES = (0.0, 2.0, 4.0, 8.0, 16.0)  # cycles per frame; DC is its own band
@@ -113,7 +113,7 @@ def _parts(
 
 
 def _accumulate(
-    data: PairedData, contact_mm: float, rim_px: int, chunk: int
+    data: DiagnosisPairs, contact_mm: float, rim_px: int, chunk: int
 ) -> dict[str, torch.Tensor]:
     """Every sum the axes are split from, in one pass over the pairs, ``chunk`` at a time."""
     n, _, h, w = data.sim.shape
@@ -163,7 +163,7 @@ def _accumulate(
     return acc
 
 
-def _axes(data: PairedData, acc: dict[str, torch.Tensor]) -> dict[str, Any]:
+def _axes(data: DiagnosisPairs, acc: dict[str, torch.Tensor]) -> dict[str, Any]:
     """Each axis's parts, largest first (``_parts``), from the sums of ``_accumulate``."""
     n, _, h, w = data.sim.shape
     bands, band_names = band_index(h, w)
@@ -199,7 +199,7 @@ def _axes(data: PairedData, acc: dict[str, torch.Tensor]) -> dict[str, Any]:
 
 
 def analyse_where(
-    data: PairedData,
+    data: DiagnosisPairs,
     contact_mm: float = CONTACT_MM,
     rim_px: int | None = None,
     chunk: int = 256,

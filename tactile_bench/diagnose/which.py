@@ -47,7 +47,7 @@ from tactile_bench.diagnose.gapfit import (
     rounding_gap,
 )
 from tactile_bench.diagnose.noise import FrameNoise, frame_noise
-from tactile_bench.diagnose.paired import PairedData
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.ranking import (
     DenoiseCheck,
     EffectFit,
@@ -173,7 +173,7 @@ class Round:
 
 
 def explain_gap(
-    data: PairedData,
+    data: DiagnosisPairs,
     fit_idx: torch.Tensor,
     held_idx: torch.Tensor,
     candidates: Sequence[str] | None = None,
@@ -208,7 +208,7 @@ def explain_gap(
     return result
 
 
-def _check_split(data: PairedData, idx: torch.Tensor, what: str) -> torch.Tensor:
+def _check_split(data: DiagnosisPairs, idx: torch.Tensor, what: str) -> torch.Tensor:
     idx = torch.as_tensor(idx, dtype=torch.long).reshape(-1)
     if len(idx) < 2:
         raise TactileBenchError(f"explain_gap: the {what} split needs at least 2 pairs")
@@ -226,7 +226,7 @@ def _candidate_names(candidates: Sequence[str] | None) -> list[str]:
 
 
 def _gap_problem(
-    data: PairedData, fit_idx: torch.Tensor, held_idx: torch.Tensor, seed: int
+    data: DiagnosisPairs, fit_idx: torch.Tensor, held_idx: torch.Tensor, seed: int
 ) -> GapProblem:
     """The splits as (scene, real target), sharing the fit split's reference, and what the
     held-out pairs measure before any effect."""
@@ -522,7 +522,7 @@ def _refit_coalition(problem: GapProblem, names: Sequence[str]) -> torch.Tensor:
 
 
 def _background_line(
-    data: PairedData, held_idx: torch.Tensor, problem: GapProblem
+    data: DiagnosisPairs, held_idx: torch.Tensor, problem: GapProblem
 ) -> tuple[EffectFit | None, str]:
     """The background correction's row (its share of the plain sim's held-out gap), or
     None with the reason when there is nothing to correct."""
@@ -538,7 +538,7 @@ def _background_line(
 
 
 def first_round(
-    data: PairedData,
+    data: DiagnosisPairs,
     fit_idx: torch.Tensor,
     held_idx: torch.Tensor,
     names: Sequence[str],
@@ -551,7 +551,7 @@ def first_round(
 
 
 def _depth_split_check(
-    data: PairedData, names: Sequence[str], ranking: list[EffectFit], seed: int
+    data: DiagnosisPairs, names: Sequence[str], ranking: list[EffectFit], seed: int
 ) -> Stability | None:
     """The first round with the shallow presses fitted and the deep ones held out, against
     the selection (``stability.check``)."""
