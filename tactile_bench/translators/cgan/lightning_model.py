@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from lightning.pytorch.loggers import Logger
@@ -58,16 +58,6 @@ class CGANConfig(TranslatorConfig):
     dropout: float = Field(
         default=0.5, ge=0, lt=1, description="dropout of the innermost decoder layers"
     )
-    generator_norm: Norm = Field(
-        default="instance",
-        description="the generator's norm: instance (pix2pix at batch 1), or batch, evaluated "
-        "with running statistics so an output pixel sees only its receptive field",
-    )
-    generator_upsample: Upsample = Field(
-        default="transpose",
-        description="the generator's upsampling: transpose (pix2pix's stride-2 transposed "
-        "convolutions) or resize (nearest-neighbour resize, then a 3 x 3 convolution)",
-    )
     depth_scale_mm: float = Field(
         default=1.0, gt=0, description="the generator sees depth in mm divided by this"
     )
@@ -84,6 +74,10 @@ class CGANTranslator(Translator):
 
     name = "cgan"
     Config = CGANConfig
+    #: the generator's norm and upsampling: pix2pix's, which the table's row uses. A variant
+    #: is a subclass registered under its own name (scripts/cgan_ab/ holds the A/B's)
+    generator_norm: ClassVar[Norm] = "instance"
+    generator_upsample: ClassVar[Upsample] = "transpose"
 
     def __init__(self, config: CGANConfig | dict[str, Any] | None = None) -> None:
         super().__init__(config)
@@ -97,8 +91,8 @@ class CGANTranslator(Translator):
                 cfg.generator_channels,
                 cfg.num_downs,
                 dropout=cfg.dropout,
-                norm=cfg.generator_norm,
-                upsample=cfg.generator_upsample,
+                norm=self.generator_norm,
+                upsample=self.generator_upsample,
             )
             self.discriminator = PatchDiscriminator(
                 4, cfg.discriminator_channels, cfg.discriminator_layers
