@@ -136,22 +136,12 @@ def test_auto_precision_follows_the_hardware(monkeypatch: pytest.MonkeyPatch, na
     assert translator.training_precision({"precision": "32-true"}) == "32-true"
 
 
-def test_legacy_bf16_key_still_loads(tmp_path: Path) -> None:
-    assert DiffusionTranslator({**TINY, "bf16": True}).config.precision == "auto"
-    assert DiffusionTranslator({**TINY, "bf16": False}).config.precision == "32-true"
-    with pytest.raises(TactileBenchError, match="'bf16' and 'precision' both given"):
-        DiffusionTranslator({**TINY, "bf16": False, "precision": "32-true"})
-    with pytest.raises(TactileBenchError, match="'bf16'"):
-        DiffusionTranslator({**TINY, "bf16": "maybe"})
+def test_precision_is_the_only_precision_key() -> None:
+    """``bf16`` (the key before ``precision``) is refused by name, as any unknown key."""
+    with pytest.raises(TactileBenchError, match="bf16"):
+        DiffusionTranslator({**TINY, "bf16": False})
     with pytest.raises(TactileBenchError, match="'precision'"):
         DiffusionTranslator({**TINY, "precision": "fp16"})
-    # a checkpoint written before ``precision`` existed
-    path = DiffusionTranslator({**TINY, "precision": "32-true"}).save(tmp_path / "old.pt")
-    payload = torch.load(path, weights_only=True)
-    del payload["config"]["precision"]
-    payload["config"]["bf16"] = False
-    torch.save(payload, path)
-    assert DiffusionTranslator.load(path).config.precision == "32-true"
 
 
 def test_save_pretrained_round_trip(tmp_path: Path) -> None:

@@ -29,7 +29,7 @@ from typing import Any, Literal
 import torch
 import torch.nn.functional as F
 from diffusers import DDPMScheduler, UNet2DModel
-from pydantic import Field, model_validator
+from pydantic import Field
 
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.hardware import resolve_precision
@@ -102,27 +102,6 @@ class DiffusionConfig(TranslatorConfig):
     observation_noise: bool = Field(
         default=True, description="add the camera noise measured on the training images"
     )
-
-    @model_validator(mode="before")
-    @classmethod
-    def _legacy_bf16(cls, data: Any) -> Any:
-        """Configs and checkpoints written before ``precision`` carry ``bf16: true/false``."""
-        if not isinstance(data, dict) or "bf16" not in data:
-            return data
-        data = dict(data)
-        bf16 = data.pop("bf16")
-        if "precision" in data:
-            raise ValueError(
-                "config keys 'bf16' and 'precision' both given: bf16 is the old name of "
-                "precision (true = auto, false = 32-true); give precision only"
-            )
-        if not isinstance(bf16, bool):
-            raise ValueError(
-                f"config key 'bf16' (old name of precision): must be true or false, got {bf16!r}"
-            )
-        # true was the default, not a choice: it becomes the new default
-        data["precision"] = "auto" if bf16 else "32-true"
-        return data
 
 
 _NOISE_DECAY = 0.98  # the estimate averages over about the last 50 training batches
