@@ -52,7 +52,7 @@ def _onednn_allows_bf16() -> bool:
 
 
 @functools.cache
-def _cpu_native_bf16() -> bool:
+def cpu_native_bf16() -> bool:
     """AVX-512-BF16 or AMX that oneDNN may use: torch's own probes when it has them, else
     /proc/cpuinfo; and no ``ONEDNN_MAX_CPU_ISA`` cap below bf16."""
     if not _onednn_allows_bf16():
@@ -76,7 +76,7 @@ def native_bf16(device: str = "cpu") -> bool:
     """Whether ``device`` ("cpu", "cuda", ...) has bf16 arithmetic, so autocast pays off."""
     kind = device.split(":")[0]
     if kind == "cpu":
-        return _cpu_native_bf16()
+        return cpu_native_bf16()
     if kind == "cuda":
         return bool(torch.cuda.is_available() and torch.cuda.is_bf16_supported())
     return False
@@ -115,7 +115,7 @@ def describe_device(device: torch.device) -> str:
     return device.type
 
 
-def _conv_slowdown() -> float:
+def conv_slowdown() -> float:
     """bf16-autocast time over fp32 time of a tiny 3 x 3 conv (well under 0.2 s on AVX2)."""
     gen = torch.Generator().manual_seed(0)  # own generator: the global RNG stays untouched
     x = torch.randn(4, 16, 32, 32, generator=gen)
@@ -151,7 +151,7 @@ def _warn_slow_bf16(device: str) -> None:
     _WARNED.add(kind)
     if kind == "cpu":
         capability = torch.backends.cpu.get_cpu_capability()
-        why = f"a 3x3 conv ran {_conv_slowdown():.0f}x slower than fp32 here"
+        why = f"a 3x3 conv ran {conv_slowdown():.0f}x slower than fp32 here"
         where = f"a CPU without native bf16 ({capability})"
     else:
         why, where = "expect it to be slower than fp32", f"{kind} without native bf16"

@@ -95,20 +95,18 @@ def _training_result(auto: str, capability: str) -> dict:
     return {"training": {"classifier": rows}, "machine": machine | {"auto_precision": auto}}
 
 
-def test_training_table_names_the_cpu_its_bf16_figures_hold_for() -> None:
-    from tactile_bench.bench.report import _training
-
-    md = "\n".join(_training(_training_result("32-true", "AVX2")))
+def test_training_table_names_the_cpu_its_bf16_figures_hold_for(bench_markdown) -> None:
+    md = bench_markdown(**_training_result("32-true", "AVX2"))
     header = next(line for line in md.splitlines() if line.startswith("| model"))
     assert "| fp32 (auto) | bf16 on AVX2 |" in header
     assert "| fp32+channels_last (auto) | bf16+channels_last on AVX2 |" in header
     assert "0.1 (0.01x)" in md
     assert "All figures measured on AVX2" in md and "trains in 32-true" in md
-    md = "\n".join(_training(_training_result("bf16-mixed", "AVX512")))
+    md = bench_markdown(**_training_result("bf16-mixed", "AVX512"))
     assert "| fp32 | bf16 on AVX512 (auto) |" in md
     old = _training_result("32-true", "AVX2")  # a bench.json from before precision: auto
-    del old["machine"]["auto_precision"]
-    assert "(auto)" not in "\n".join(_training(old))
+    del old["machine"]["auto_precision"], old["machine"]["native_bf16"]
+    assert "(auto)" not in bench_markdown(**old)
 
 
 @pytest.mark.parametrize("name", ["bench.json", "bench_avx2.json"])
@@ -209,9 +207,9 @@ def test_cli_names_a_missing_checkpoint(tmp_path: Path, capsys: pytest.CaptureFi
 
 def test_object_builds_count_the_worker_processes_cpu() -> None:
     """``time.process_time`` misses the worker processes: their reported CPU is added."""
-    from tactile_bench.bench.simulation import _measure_with_workers
+    from tactile_bench.bench.simulation import measure_with_workers
 
-    t = _measure_with_workers(lambda: 5.0, work=10, repeats=2)
+    t = measure_with_workers(lambda: 5.0, work=10, repeats=2)
     assert len(t.cpu_s) == 2 and all(5.0 <= c < 5.5 for c in t.cpu_s)
     assert t.per_cpu_s < 10 / 5.0
 

@@ -8,8 +8,7 @@ import statistics
 import pytest
 import torch
 
-from tactile_bench.bench.jpeg import CODECS, _kornia_padding, codecs, jpeg_section
-from tactile_bench.bench.report import _jpeg
+from tactile_bench.bench.jpeg import CODECS, codecs, describe_kornia_padding, jpeg_section
 
 QUALITIES = (30, 90)
 
@@ -58,7 +57,7 @@ def test_errors_are_against_libjpeg_and_shrink_with_quality(section: dict) -> No
         assert rows[90]["mae_vs_libjpeg"] < rows[30]["mae_vs_libjpeg"], codec
 
 
-def test_the_verdict_is_computed_from_the_rows(section: dict) -> None:
+def test_the_verdict_is_computed_from_the_rows(section: dict, bench_markdown) -> None:
     assert section["headline"] == "effect"
     s = section["summary"]["effect"]
     ours, kornia = _rows(section, "effect", "ours"), _rows(section, "effect", "kornia")
@@ -66,7 +65,7 @@ def test_the_verdict_is_computed_from_the_rows(section: dict) -> None:
     assert s["ours_over_kornia_forward"] == pytest.approx(statistics.median(ratios))
     errors = [ours[q]["mae_vs_libjpeg"] for q in QUALITIES]
     assert s["ours_mae_vs_libjpeg"] == pytest.approx(statistics.fmean(errors))
-    md = "\n".join(_jpeg({"jpeg": section}))
+    md = bench_markdown(jpeg=section)
     assert "## JPEG codecs: ours against kornia's, libjpeg the reference" in md
     verdict = next(line for line in md.splitlines() if line.startswith("**Verdict**"))
     assert f"{s['ours_over_kornia_forward']:.1f}x kornia's forward speed" in verdict
@@ -86,5 +85,5 @@ def test_the_differentiable_codecs_pass_a_gradient() -> None:
 
 
 def test_kornia_padding_is_named_from_the_sizes() -> None:
-    assert "nothing was padded" in _kornia_padding([(64, 64), (320, 240)])
-    assert "60 x 50 -> 64 x 64" in _kornia_padding([(64, 64), (60, 50)])
+    assert "nothing was padded" in describe_kornia_padding([(64, 64), (320, 240)])
+    assert "60 x 50 -> 64 x 64" in describe_kornia_padding([(64, 64), (60, 50)])

@@ -52,8 +52,7 @@ def test_validate_diagnosis_suites_match_the_module() -> None:
     assert (*SUITES, "both") == VALIDATION_SUITES
 
 
-def test_the_bench_times_every_help_in_a_fresh_process() -> None:
-    from tactile_bench.bench.report import _startup
+def test_the_bench_times_every_help_in_a_fresh_process(bench_markdown) -> None:
     from tactile_bench.bench.startup import help_commands, startup_times
 
     commands = help_commands()
@@ -63,7 +62,7 @@ def test_the_bench_times_every_help_in_a_fresh_process() -> None:
     assert [row["command"] for row in result["rows"]] == ["--help", "list --help"]
     assert all(row["median_s"] > 0 for row in result["rows"])
     assert result["slowest_help_s"] == max(row["median_s"] for row in result["rows"])
-    table = "\n".join(_startup({"startup": result}))
+    table = bench_markdown(startup=result)
     assert "| `list --help` |" in table and "Every `--help` under 1 s" in table
 
 

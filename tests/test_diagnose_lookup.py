@@ -15,7 +15,7 @@ from tactile_bench.diagnose.scene import fit_reference, make_scene
 from tactile_bench.diagnose.simulate import apply_effects, lookup_for
 from tactile_bench.diagnose.validate import planted_pairs
 from tactile_bench.diagnose.which import explain_gap
-from tactile_bench.effects._taxim_fit import SENSORS
+from tactile_bench.effects.optics import sensor_optics
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import BrailleSpec
 from tactile_bench.sensor.heightfield import build_bank
@@ -29,7 +29,7 @@ def foreign_sensor_pairs():
     """Braille pairs whose 'real' sensor answers light like the GelSight, not our DIGIT."""
     bank = build_bank(("A", "L", "#"), BrailleSpec())
     data = planted_pairs(bank, {}, 48, 5, SIZE)
-    weights = np.asarray(SENSORS["gelsight"]["response_weights"])
+    weights = sensor_optics("gelsight")[0].numpy()
     real = data.background[None] + predict_delta(data.depth, weights, data.gel_mm)
     return dataclasses.replace(data, real=real.round().clamp(0, 255))
 

@@ -125,7 +125,6 @@ def test_fit_does_not_read_parameter_defaults(bank, monkeypatch) -> None:
     effect = EFFECTS["gamma_white_balance"]
     moved = tuple(dataclasses.replace(p, default=p.high) for p in effect.params)
     monkeypatch.setattr(type(effect), "params", moved)
-    monkeypatch.setattr(effect, "_index", {p.name: p for p in moved})
     assert fit_candidate("gamma_white_balance", base, target) == before
 
 
@@ -377,7 +376,9 @@ def test_the_grid_holds_every_point_a_sweep_from_the_start_could_reach() -> None
     """Each parameter's start is one of its grid levels: the grid never ends worse than the
     coordinate sweep it replaced (a foreign elastic plant once lost 0.85 -> below 0.68)."""
     u = {"a": 0.4, "b": 0.6}  # neither start is one of SWEEP_LEVELS
-    gapfit._grid(u, ["a", "b"], lambda v: (float(v["a"]) - 0.4) ** 2 + (float(v["b"]) - 0.98) ** 2)
+    gapfit.fit_on_grid(
+        u, ["a", "b"], lambda v: (float(v["a"]) - 0.4) ** 2 + (float(v["b"]) - 0.98) ** 2
+    )
     assert u == {"a": 0.4, "b": 0.98}
 
 

@@ -19,10 +19,10 @@ def probes(monkeypatch: pytest.MonkeyPatch) -> Any:
     def set_probes(avx512_bf16: bool, amx: bool) -> None:
         monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16)
         monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx)
-        hardware._cpu_native_bf16.cache_clear()
+        hardware.cpu_native_bf16.cache_clear()
 
     yield set_probes
-    hardware._cpu_native_bf16.cache_clear()
+    hardware.cpu_native_bf16.cache_clear()
 
 
 @pytest.fixture
@@ -87,17 +87,17 @@ def test_cpuinfo_fallback_without_torch_probes(monkeypatch: pytest.MonkeyPatch, 
             return f"processor : 0\nflags\t\t: {text['flags']}\n"
 
     monkeypatch.setattr(hardware, "Path", FakePath)
-    hardware._cpu_native_bf16.cache_clear()
+    hardware.cpu_native_bf16.cache_clear()
     try:
         assert not hardware.native_bf16()
         text["flags"] = "fpu avx2 avx512f avx512_bf16"
-        hardware._cpu_native_bf16.cache_clear()
+        hardware.cpu_native_bf16.cache_clear()
         assert hardware.native_bf16()
         text["flags"] = "fpu avx2 amx_bf16 amx_tile"
-        hardware._cpu_native_bf16.cache_clear()
+        hardware.cpu_native_bf16.cache_clear()
         assert hardware.native_bf16()
     finally:
-        hardware._cpu_native_bf16.cache_clear()
+        hardware.cpu_native_bf16.cache_clear()
 
 
 def test_no_cuda_means_no_cuda_bf16() -> None:
@@ -136,7 +136,7 @@ def test_the_warning_measurement_is_quick_and_keeps_global_state() -> None:
 
     state, threads = torch.get_rng_state(), torch.get_num_threads()
     start = time.perf_counter()
-    ratio = hardware._conv_slowdown()
+    ratio = hardware.conv_slowdown()
     assert time.perf_counter() - start < 1.0  # ~0.1 s on a 2-core AVX2 machine
     assert ratio > 0
     if not hardware.native_bf16():
@@ -197,7 +197,7 @@ def test_a_run_under_isa_caps_says_so(probes: Any, monkeypatch: pytest.MonkeyPat
     probes(True, False)
     assert "capped" not in machine_line(hardware.machine_compute())
     monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")
-    hardware._cpu_native_bf16.cache_clear()
+    hardware.cpu_native_bf16.cache_clear()
     info = hardware.machine_compute()
     assert info["isa_caps"] == {"ONEDNN_MAX_CPU_ISA": "AVX2"}
     assert info["auto_precision"] == "32-true"

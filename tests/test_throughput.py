@@ -233,7 +233,7 @@ def test_corpus_is_the_same_built_in_worker_processes(tmp_path, objects) -> None
 
 def test_jobs_are_split_so_every_worker_has_as_many_frames() -> None:
     from tactile_bench.data.ycb_slide import StandinConfig
-    from tactile_bench.data.ycb_workers import ObjectJob, _split_jobs
+    from tactile_bench.data.ycb_workers import ObjectJob, split_jobs
 
     def job(n_pairs: int) -> ObjectJob:
         config = StandinConfig(n_pairs=n_pairs, objects=("037_scissors",))
@@ -242,24 +242,24 @@ def test_jobs_are_split_so_every_worker_has_as_many_frames() -> None:
         return ObjectJob("x", 0, config, None, None, None, None, None, None, todo)
 
     # 5 trajectories of 160 frames (chunks of 64, 64, 32) over 2 workers: 384 and 416 frames
-    assert [j.todo for j in _split_jobs([job(800)], 2)] == [
+    assert [j.todo for j in split_jobs([job(800)], 2)] == [
         [(0, 0, 3), (1, 0, 3), (2, 0, 1)],
         [(2, 1, 3), (3, 0, 3), (4, 0, 3)],
     ]
     # one chunk a trajectory: split by trajectory
-    assert [j.todo for j in _split_jobs([job(20)], 2)] == [
+    assert [j.todo for j in split_jobs([job(20)], 2)] == [
         [(0, 0, 1), (1, 0, 1), (2, 0, 1)],
         [(3, 0, 1), (4, 0, 1)],
     ]
-    assert [j.todo for j in _split_jobs([job(20)] * 2, 2)] == [[(k, 0, 1) for k in range(5)]] * 2
-    assert len(_split_jobs([job(20)], 8)) == 5  # at most one chunk a job
+    assert [j.todo for j in split_jobs([job(20)] * 2, 2)] == [[(k, 0, 1) for k in range(5)]] * 2
+    assert len(split_jobs([job(20)], 8)) == 5  # at most one chunk a job
 
 
 def test_a_trajectory_built_in_pieces_is_the_one_built_whole(tmp_path) -> None:
     """Each chunk draws from its own generator, so splitting a trajectory over jobs (as the
     builder does to balance its workers) writes the same shard."""
     from tactile_bench.data.ycb_slide import StandinConfig
-    from tactile_bench.data.ycb_workers import ObjectJob, _build_object, write_shard
+    from tactile_bench.data.ycb_workers import ObjectJob, build_object, write_shard
     from tactile_bench.sensor.background import sim_background
     from tactile_bench.sensor.surrogate import SurrogateDigit
 
@@ -272,11 +272,11 @@ def test_a_trajectory_built_in_pieces_is_the_one_built_whole(tmp_path) -> None:
         tmp_path, [(1, 0, 2)],
     )  # fmt: skip
     assert config.frames_per_trajectory == 70
-    n = _build_object(whole).written[1]  # scissors drop frames that would collide
+    n = build_object(whole).written[1]  # scissors drop frames that would collide
     assert n > 40
     reference = (tmp_path / "shards/037_scissors_1.npz").read_bytes()
-    first = _build_object(dataclasses.replace(whole, todo=[(1, 1, 2)]))  # the later chunk first
-    second = _build_object(dataclasses.replace(whole, todo=[(1, 0, 1)]))
+    first = build_object(dataclasses.replace(whole, todo=[(1, 1, 2)]))  # the later chunk first
+    second = build_object(dataclasses.replace(whole, todo=[(1, 0, 1)]))
     assert not first.written and not second.written
     pieces = {**first.pieces, **second.pieces}
     assert sorted(pieces) == [(1, 0, 1), (1, 1, 2)]

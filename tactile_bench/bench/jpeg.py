@@ -187,7 +187,7 @@ def _settings(
     return {k: v for k, v in out.items() if len(v[0])}
 
 
-def _kornia_padding(sizes: Sequence[tuple[int, int]]) -> str:
+def describe_kornia_padding(sizes: Sequence[tuple[int, int]]) -> str:
     """What kornia's multiple-of-16 grid did to the sizes coded here, from the sizes."""
     padded = [
         f"{h} x {w} -> {-(-h // MCU) * MCU} x {-(-w // MCU) * MCU}"
@@ -292,7 +292,7 @@ def jpeg_section(
         "chunk": StreamCompression.chunk,
         "threads": torch.get_num_threads(),
         "kornia": version("kornia"),
-        "kornia_padding": _kornia_padding(sorted({v[1] for v in settings.values()})),
+        "kornia_padding": describe_kornia_padding(sorted({v[1] for v in settings.values()})),
         "rows": rows,
         "summary": summaries,
         "headline": headline,

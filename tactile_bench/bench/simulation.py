@@ -211,7 +211,7 @@ def _build_scaling(
                 build()
                 first_build_s = time.perf_counter() - w0
             work = config.frames_per_trajectory * config.n_trajectories * len(object_names)
-            scaling[f"{k}x"] = _measure_with_workers(build, work, repeats).to_dict()
+            scaling[f"{k}x"] = measure_with_workers(build, work, repeats).to_dict()
     return scaling, first_build_s
 
 
@@ -227,7 +227,7 @@ def _marginal_rates(scaling: dict[str, dict[str, Any]]) -> dict[str, float]:
     }
 
 
-def _measure_with_workers(build: Callable[[], float], work: float, repeats: int) -> Timing:
+def measure_with_workers(build: Callable[[], float], work: float, repeats: int) -> Timing:
     """``measure(build)`` with the CPU time the worker processes report added to each
     repetition's (``time.process_time`` sees only this process)."""
     worker_cpu: list[float] = []
@@ -242,4 +242,4 @@ def linearity(scaling: dict[str, dict[str, Any]]) -> dict[str, float]:
     return {key: row["median_wall_s"] / (int(key[:-1]) * base) for key, row in scaling.items()}
 
 
-__all__ = ["SCALES", "braille", "linearity", "objects"]
+__all__ = ["SCALES", "braille", "linearity", "measure_with_workers", "objects"]

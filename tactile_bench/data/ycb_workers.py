@@ -111,7 +111,7 @@ def _cat(parts: list[Any]) -> Any:
     return torch.cat(parts) if isinstance(parts[0], torch.Tensor) else np.concatenate(parts)
 
 
-def _build_object(job: ObjectJob) -> Built:
+def build_object(job: ObjectJob) -> Built:
     """Build the pieces ``job.todo``: whole trajectories are written as shards here, parts
     of trajectories are returned to be joined with the rest.
 
@@ -170,17 +170,17 @@ def _worker_init() -> None:
 
 
 def _build_object_timed(job: ObjectJob) -> tuple[dict[int, int], dict | None]:
-    """``_build_object`` in a worker process, with its span times when the parent times."""
+    """``build_object`` in a worker process, with its span times when the parent times."""
     if not job.timing:
-        return _build_object(job), None
+        return build_object(job), None
     cpu = time.process_time()
     with SpanTimer() as timer:
-        built = _build_object(job)
+        built = build_object(job)
     times = {"wall": dict(timer.wall), "cpu": dict(timer.cpu)}
     return built, {**times, "process_cpu": time.process_time() - cpu}
 
 
-def _split_jobs(jobs: list[ObjectJob], workers: int) -> list[ObjectJob]:
+def split_jobs(jobs: list[ObjectJob], workers: int) -> list[ObjectJob]:
     """Fewer objects than workers: split each object's chunks into groups of about equal
     frames (each group pays the object's set-up again, in its own process) so every
     worker has as much work (5 trajectories over 2 workers: 2.5 each, not 3 and 2)."""
@@ -232,11 +232,11 @@ def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[tuple[ObjectJob, B
     cores to work. Workers run torch on one thread each.
     """
     if workers > 1:
-        jobs = _split_jobs(jobs, workers)
+        jobs = split_jobs(jobs, workers)
     workers = min(workers, len(jobs))
     if workers <= 1:
         for job in jobs:
-            yield job, _build_object(job)
+            yield job, build_object(job)
         return
     timer = active_timer()
     for job in jobs:
@@ -263,4 +263,4 @@ def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[tuple[ObjectJob, B
             stacklevel=3,
         )
         for job in left:
-            yield job, _build_object(job)
+            yield job, build_object(job)

@@ -275,7 +275,7 @@ def _search_gradient_free(u: dict[str, ParamValue], names: list[str], loss_fn: L
     """Few gradient-free parameters: a full grid (coupled ones, such as a gel's spread and
     the core it holds, stall a sweep one coordinate at a time); many: a sweep."""
     if len(names) <= MAX_GRID_PARAMS:
-        _grid(u, names, loss_fn)
+        fit_on_grid(u, names, loss_fn)
     else:
         _sweep(u, names, SWEEP_LEVELS, loss_fn)
 
@@ -335,7 +335,7 @@ def _whole_values(
         u.update(points[best[1]])
 
 
-def _grid(u: dict[str, ParamValue], names: list[str], loss_fn: Loss) -> None:
+def fit_on_grid(u: dict[str, ParamValue], names: list[str], loss_fn: Loss) -> None:
     """``names`` set to their best point on the full grid of ``SWEEP_LEVELS`` (coupled
     parameters, such as a gel's spread and the core it holds, have no good value of one at
     the other's start: a sweep one coordinate at a time stalls there)."""

@@ -129,19 +129,17 @@ class Effect(ABC):
     differentiable: ClassVar[tuple[str, ...]] = ()
     stochastic: ClassVar[bool] = False
 
-    def __init__(self) -> None:
-        self._index = {p.name: p for p in self.params}
-
     def __repr__(self) -> str:
         return f"{type(self).__name__}(name={self.name!r}, acts_on={self.acts_on!r})"
 
     # ---------------------------------------------------------------- parameters
     def param(self, name: str) -> Param:
-        if name not in self._index:
-            raise TactileBenchError(
-                f"effect {self.name!r}: unknown parameter {name!r}; known: {sorted(self._index)}"
-            )
-        return self._index[name]
+        """The parameter called ``name`` (an effect has a handful: a scan is enough)."""
+        for p in self.params:
+            if p.name == name:
+                return p
+        known = sorted(p.name for p in self.params)
+        raise TactileBenchError(f"effect {self.name!r}: unknown parameter {name!r}; known: {known}")
 
     def defaults(self) -> dict[str, float]:
         return {p.name: p.default for p in self.params}
