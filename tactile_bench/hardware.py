@@ -1,13 +1,12 @@
 """What this machine computes fast: the one place that picks a training / sampling precision.
 
 bf16 autocast is a speed-up only where the hardware has bf16 arithmetic. On an AVX2 CPU
-(no AVX-512-BF16, no AMX) oneDNN emulates it and a 3 x 3 convolution runs 50-100x slower
-than in fp32 (measured: 64 -> 64 channels on 16 x 64 x 64 x 64, 76 ms fp32, 4.9 s bf16);
-on AVX-512-BF16 or AMX CPUs it is 1.3-1.9x faster. So ``precision: auto`` (the default of
-every config that chooses one) resolves per machine: bf16 where it is native, fp32 elsewhere.
-"Native" also means oneDNN may use it: ``ONEDNN_MAX_CPU_ISA`` capped below AVX512_CORE_BF16
-makes an AVX-512-BF16 CPU run bf16 convolutions as an AVX2 one does (measured: AVX2 69x
-slower than fp32, AVX512_CORE 2x), so ``auto`` then picks fp32 as it would there.
+(no AVX-512-BF16, no AMX) oneDNN emulates it and a convolution runs many times slower than
+in fp32; on AVX-512-BF16 or AMX CPUs it is faster (docs/results/precision.md). So
+``precision: auto`` (the default of every config that chooses one) resolves per machine:
+bf16 where it is native, fp32 elsewhere. "Native" also means oneDNN may use it:
+``ONEDNN_MAX_CPU_ISA`` capped below AVX512_CORE_BF16 makes an AVX-512-BF16 CPU run bf16
+convolutions as an AVX2 one does, so ``auto`` then picks fp32 as it would there.
 
 Lowest layer: imports torch and the standard library only.
 """

@@ -43,8 +43,8 @@ class BrailleClassifier(L.LightningModule):
     """ResNet classifier of 64 x 64 foregrounds into 27 braille characters.
 
     Paper: ResNet-18, Adam lr 1e-4, batch 20, cross-entropy. ``channels_last`` stores the
-    network's weights NHWC, so activations follow; with ``precision="bf16-mixed"`` this
-    trained about 1.8x faster than fp32 NCHW on our CPU (``python -m tactile_bench bench``).
+    network's weights NHWC, so activations follow: with ``precision="bf16-mixed"`` the
+    fastest layout on a CPU with bf16 arithmetic (``python -m tactile_bench bench``).
     Metrics follow the paper's table: micro accuracy, macro precision and macro recall
     (torchmetrics), plus the confusion matrix on test (kept in ``self.test_confusion``
     after ``trainer.test``).

@@ -46,8 +46,8 @@ class ClassifierConfig:
     training, and eval-mode accuracy can then collapse; 0 disables it.
 
     ``precision``: ``auto`` trains in bf16 autocast only where the CPU has bf16 arithmetic
-    (AVX-512-BF16, AMX: 1.3-1.9x faster) and in fp32 elsewhere (emulated bf16 on AVX2 is
-    50-100x slower); see ``tactile_bench.hardware``.
+    (AVX-512-BF16, AMX) and in fp32 elsewhere (emulated bf16 on AVX2 is many times slower);
+    see ``tactile_bench.hardware``.
     """
 
     width: int = 16

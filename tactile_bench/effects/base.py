@@ -243,7 +243,7 @@ def per_sub_batch(
     """``fn(*xs)`` evaluated on consecutive slices of the batch and concatenated.
 
     Same result (every image is computed on its own), but each of ``fn``'s many elementwise
-    passes then runs in a core's cache instead of main memory (~1.1-1.5x faster on CPU).
+    passes then runs in a core's cache instead of main memory.
     By default a slice holds ~``SUB_BATCH_ELEMENTS`` values of ``xs[0]``. Tensors whose
     first dim is not the batch (broadcast ones, scalars) and non-tensors go in whole.
     """

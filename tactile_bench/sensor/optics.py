@@ -332,7 +332,7 @@ def _pixel_centres(
 
 
 def _power(x: torch.Tensor, exponent: float) -> torch.Tensor:
-    """``x ** exponent`` in place; small whole exponents by repeated squaring (3x faster)."""
+    """``x ** exponent`` in place; small whole exponents by repeated squaring, not ``pow``."""
     e = float(exponent)
     if not (e.is_integer() and 1 <= e <= 64):
         return x.pow_(e)

@@ -13,12 +13,10 @@ Two modes, both adding only a contact's colour change to the caller's background
   low-pass, clamp) follow. There is no ambient draw: ambient light is the same on the
   pressed and the flat gel, so it cancels in that difference, and the background stays the
   caller's.
-- ``image``: the previous kornia photometric pipeline (colour jitter, gamma, colour
-  temperature, light gradients, blur). Its draw is applied to the composited sim image and,
-  with the very same parameters, to the background alone; the contact's change is their
-  difference. Jittering the whole frame and subtracting the unaugmented background (as
-  before) leaked the recolouring of the whole background into the foreground (KID 322 vs
-  real, sim: 0.45).
+- ``image``: a kornia photometric pipeline (colour jitter, gamma, colour temperature, light
+  gradients, blur). Its draw is applied to the composited sim image and, with the very same
+  parameters, to the background alone; the contact's change is their difference, so the
+  recolouring of the background does not leak into the foreground.
 
 ``translate(depth, background)`` returns, in both modes, ``background`` + that randomised
 contact change + camera noise, clamped to 0..255: the background is never recoloured,
