@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import torch
 
 from tactile_bench.cli import main
 from tactile_bench.diagnose.paired import load_paired
-from tactile_bench.diagnose.shrink import match_noise
+from tactile_bench.diagnose.shrink import how_far, match_noise
+from tactile_bench.diagnose.validate import planted_pairs
+from tactile_bench.geometry.braille import BrailleSpec
 from tactile_bench.metrics import estimate_pixel_noise
+from tactile_bench.sensor.heightfield import build_bank
 
 
 def _frames(noise: tuple[float, float, float], n: int = 64, seed: int = 5) -> torch.Tensor:
@@ -63,3 +67,16 @@ def test_export_pairs_protocols_differ(tmp_path: Path) -> None:
     # +-3 mm against +-5 mm offsets: the classifier grid keeps contacts nearer the centre
     assert spread(upright) < spread(turned)
     assert main(["export-pairs", *common, "--protocol", "nope", "--out", str(tmp_path / "x")]) == 2
+
+
+def test_plain_sim_trains_over_the_sims_own_no_contact_frame() -> None:
+    """A sim whose every frame is the real one moved by a constant, with its own no-contact
+    frame moved alike, has the real foregrounds: its classifier is the real one's."""
+    data = planted_pairs(build_bank(("A", "L"), BrailleSpec()), {}, 24, 3, 16)
+    offset = torch.tensor([30.0, -20.0, 10.0])[:, None, None]
+    moved = dataclasses.replace(
+        data, sim=data.real + offset, sim_background=data.background + offset
+    )
+    fit, held = torch.arange(0, 24, 2), torch.arange(1, 24, 2)
+    downstream = how_far(moved, fit, held, {}, seed=0).downstream
+    assert downstream.plain_sim_accuracy == downstream.real_accuracy

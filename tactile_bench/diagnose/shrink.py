@@ -242,7 +242,7 @@ def _downstream(
     setup = _classifiers(data, fit_idx, held_idx, seed)
     if isinstance(setup, Skipped):
         return setup
-    sim_bg = make_scene(data, fit_idx).background[0]
+    sim_bg = make_scene(data, fit_idx).sim_frame[0]  # the sim's own no-contact frame
     train_sets = {
         "plain_sim": _foreground(data.sim[fit_idx], sim_bg),
         "sim_plus_effects": _sim_plus(data, fit_idx, effects, seed),
