@@ -125,6 +125,41 @@ class ResumableSampler(Sampler[int]):
         yield from islice(order, skip, None)
 
 
+class DeviceBatches:
+    """The batches ``DataLoader(TensorDataset(*tensors), batch_size, sampler=sampler,
+    generator=generator)`` gives, in the same order, drawn by indexing ``tensors`` where
+    they are (an accelerator: moved there once, so no batch is copied from the host and no
+    worker runs; Lightning's ``transfer_batch_to_device`` leaves a batch on its device).
+
+    Each pass first draws the loader's base seed from ``generator``, as a ``DataLoader``
+    iterator does, so the sampler's permutations, and ``ResumableSampler``'s positions, are
+    the loader's.
+    """
+
+    def __init__(
+        self,
+        tensors: tuple[torch.Tensor, ...],
+        sampler: Sampler[int],
+        batch_size: int,
+        generator: torch.Generator,
+    ) -> None:
+        self.tensors = tensors
+        self.sampler = sampler
+        self.batch_size = batch_size
+        self.generator = generator
+
+    def __len__(self) -> int:
+        return -(-len(self.sampler) // self.batch_size)  # type: ignore[arg-type]
+
+    def __iter__(self) -> Iterator[tuple[torch.Tensor, ...]]:
+        torch.empty((), dtype=torch.int64).random_(generator=self.generator)
+        device = self.tensors[0].device
+        order = iter(self.sampler)
+        while batch := list(islice(order, self.batch_size)):
+            index = torch.tensor(batch, dtype=torch.long, device=device)
+            yield tuple(t[index] for t in self.tensors)
+
+
 def rng_states() -> dict[str, Any]:
     """Global torch (CPU, and every CUDA device's when there are any) / numpy / Python RNG
     states as plain types (``weights_only`` loadable)."""

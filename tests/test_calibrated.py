@@ -13,7 +13,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from tactile_bench.diagnose import calibrated
 from tactile_bench.diagnose.calibrated import CalibratedTranslator, area_strata
+from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.effects.kernels import gaussian_blur
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.metrics import estimate_pixel_noise
@@ -84,6 +86,68 @@ def test_fit_writes_the_diagnosis_result(fitted_blur, tmp_path: Path) -> None:
     written = json.loads((tmp_path / "calibration.json").read_text())
     assert written["effects"] == translator.fit_diagnostics()["effects"]
     assert written["which"]["candidates"] == ["defocus_blur"]
+
+
+def _blur_pairs(n: int = 32, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    depth = domes(n, seed=seed)
+    return depth, image_to_foreground(blurred_real(depth), sim_background(SIZE))
+
+
+@pytest.fixture(scope="module")
+def fitted_on_cpu(tmp_path_factory: pytest.TempPathFactory) -> CalibratedTranslator:
+    translator = create_translator("calibrated", FAST)
+    out = tmp_path_factory.mktemp("fit_cpu")
+    translator.fit_pairs(*_blur_pairs(), out, {**QUIET, "accelerator": "cpu"})
+    return translator
+
+
+def test_fit_on_every_device_finds_what_the_cpu_finds(
+    device: torch.device, fitted_on_cpu: CalibratedTranslator, tmp_path: Path
+) -> None:
+    """The search runs where ``accelerator`` points; its state stays with the module (the
+    CPU here), and it translates on any device."""
+    translator = create_translator("calibrated", FAST)
+    translator.fit_pairs(*_blur_pairs(), tmp_path, {**QUIET, "accelerator": device.type})
+    want, got = fitted_on_cpu.fit_diagnostics(), translator.fit_diagnostics()
+    assert list(got["effects"]) == list(want["effects"]) == ["defocus_blur"]
+    for name, params in want["effects"].items():
+        assert got["effects"][name] == pytest.approx(params, rel=1e-2, abs=1e-3)
+    assert all(b.device.type == "cpu" for b in translator.buffers())
+    depth, background = domes(6, seed=7), sim_background(SIZE)
+    expected = fitted_on_cpu.translate(depth, background, torch.Generator().manual_seed(2))
+    images = translator.to(device).translate(
+        depth.to(device), background.to(device), torch.Generator().manual_seed(2)
+    )
+    assert images.device.type == device.type
+    torch.testing.assert_close(images.cpu(), expected, atol=0.5, rtol=1e-2)
+
+
+def test_fit_moves_the_pairs_to_the_trainer_settings_device(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The device comes from the trainer's ``accelerator`` (``hardware.compute_device``), and
+    the diagnosis gets every tensor there: here ``meta``, which no CPU-made tensor joins."""
+    asked: list[object] = []
+    seen: dict[str, torch.device] = {}
+
+    class Diagnosed(Exception):
+        pass
+
+    def device_for(accelerator: object) -> torch.device:
+        asked.append(accelerator)
+        return torch.device("meta")
+
+    def diagnose(data: DiagnosisPairs, *args: object, **kwargs: object) -> None:
+        seen.update({k: getattr(data, k).device for k in ("depth", "sim", "real", "background")})
+        raise Diagnosed
+
+    monkeypatch.setattr(calibrated, "compute_device", device_for)
+    monkeypatch.setattr(calibrated, "explain_gap", diagnose)
+    translator = create_translator("calibrated", FAST)
+    with pytest.raises(Diagnosed):
+        translator.fit_pairs(*_blur_pairs(8), tmp_path, {**QUIET, "accelerator": "gpu"})
+    assert asked == ["gpu"]
+    assert set(seen.values()) == {torch.device("meta")} and len(seen) == 4
 
 
 def test_noise_is_topped_up_to_the_real_level(tmp_path: Path) -> None:

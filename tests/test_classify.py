@@ -4,15 +4,24 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
+from torch.utils.data import DataLoader, TensorDataset
 
 from tactile_bench.classify.model import ResNetClassifier, count_flops
 from tactile_bench.classify.module import BrailleClassifier, random_shift
-from tactile_bench.classify.train import ClassifierConfig, evaluate, predict, train_classifier
+from tactile_bench.classify.train import (
+    ClassifierConfig,
+    _ResumableDataModule,
+    evaluate,
+    predict,
+    train_classifier,
+)
 from tactile_bench.data.datamodule import ForegroundDataModule, stratified_split
 from tactile_bench.pipeline.loggers import finish_loggers, make_loggers
+from tactile_bench.training import DeviceBatches, ResumableSampler
 
 N_CLASSES = 9
 SIZE = 32
@@ -165,6 +174,71 @@ def test_same_seed_same_result(tmp_path: Path) -> None:
         weights.append(model.net.fc.weight.detach().clone())
     assert results[0] == results[1]
     assert torch.equal(weights[0], weights[1])
+
+
+def _loader_and_device_batches(
+    x: torch.Tensor, y: torch.Tensor, batch_size: int
+) -> tuple[DataLoader, DeviceBatches]:
+    """The CPU path's DataLoader and DeviceBatches, each with its own same-seeded sampler."""
+    samplers = []
+    for _ in range(2):
+        gen = torch.Generator().manual_seed(5)
+        samplers.append((ResumableSampler(len(x), gen, batch_size), gen))
+    (s1, g1), (s2, g2) = samplers
+    loader = DataLoader(TensorDataset(x, y), batch_size=batch_size, sampler=s1, generator=g1)
+    return loader, DeviceBatches((x, y), s2, batch_size, g2)
+
+
+def test_device_batches_are_the_dataloaders_batches_epoch_after_epoch_and_resumed() -> None:
+    x, y = torch.randn(23, 3, 4, 4), torch.arange(23)
+    loader, resident = _loader_and_device_batches(x, y, batch_size=5)
+    assert len(resident) == len(loader) == 5
+    for _ in range(3):  # each epoch a new permutation, drawn after the loader's base seed
+        for (a, b), (c, d) in zip(loader, resident, strict=True):
+            assert torch.equal(a, c) and torch.equal(b, d)
+    epoch, skip = loader.sampler.next_epoch_state(), 2
+    for sampler in (loader.sampler, resident.sampler):
+        sampler.resume(epoch, skip)  # a checkpoint's position: the next epoch's third batch
+    resumed = [[b for _, b in batches] for batches in (loader, resident)]
+    assert len(resumed[0]) == 3 and all(map(torch.equal, *resumed))
+
+
+def test_resident_training_on_the_cpu_is_bit_identical_to_the_dataloaders(
+    tmp_path: Path,
+) -> None:
+    """The accelerator's path (images on the device, batches indexed there) run on the CPU:
+    the same weights as the DataLoader's, bit for bit (23 images: a short last batch)."""
+    fg, labels = blobs(3, seed=4)
+    fg, labels = fg[:23], labels[:23]
+    config = ClassifierConfig(**{**TINY, "batch_size": 5}, epochs=2, seed=3, augment=True)
+    weights = []
+    for resident in (False, True):
+        model = train_classifier(
+            fg,
+            labels,
+            config,
+            tmp_path / str(resident),
+            trainer_kwargs=FAST,
+            num_classes=N_CLASSES,
+            resident=resident,
+        )
+        weights.append(model.state_dict())
+    assert weights[0].keys() == weights[1].keys()
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+
+
+def test_on_an_accelerator_the_training_images_move_there_once() -> None:
+    """The path is chosen by the device the attached Trainer fits on (here ``meta``)."""
+    fg, labels = blobs(2, seed=5)
+    data = _ResumableDataModule(train=(fg, labels), batch_size=4)
+    assert isinstance(data.train_dataloader(), DataLoader)  # no Trainer: the CPU
+    data.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device("meta")))
+    first, again = data.train_dataloader(), data.train_dataloader()
+    assert isinstance(first, DeviceBatches)
+    assert all(t.device.type == "meta" for t in first.tensors)
+    assert all(a is b for a, b in zip(first.tensors, again.tensors, strict=True))  # once
+    x, y = next(iter(first))
+    assert x.device.type == "meta" and x.shape == (4, *fg.shape[1:]) and y.shape == (4,)
 
 
 def test_lightning_test_metrics(trained: tuple[BrailleClassifier, Path]) -> None:

@@ -30,7 +30,13 @@ from tactile_bench.classify.model import NUM_CLASSES
 from tactile_bench.classify.module import BrailleClassifier
 from tactile_bench.data.datamodule import ForegroundDataModule
 from tactile_bench.hardware import PRECISIONS, Precision, compute_device, trainer_precision
-from tactile_bench.training import ResumableSampler, fingerprint, result_settings, resumable_fit
+from tactile_bench.training import (
+    DeviceBatches,
+    ResumableSampler,
+    fingerprint,
+    result_settings,
+    resumable_fit,
+)
 
 
 @dataclass
@@ -106,14 +112,32 @@ def _close_wandb(loggers: Sequence[Logger]) -> None:
 
 class _ResumableDataModule(ForegroundDataModule):
     """The same shuffled batches as ForegroundDataModule, from a sampler whose position a
-    checkpoint restores (so a killed training resumes on the very next batch)."""
+    checkpoint restores (so a killed training resumes on the very next batch).
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    ``resident``: the training tensors are moved to the fit's device once and batches are
+    drawn there (``DeviceBatches``: the same batches in the same order); None: so on an
+    accelerator, through a ``DataLoader`` on the CPU.
+    """
+
+    def __init__(self, *args: Any, resident: bool | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.generator = torch.Generator().manual_seed(self.seed)
         self.sampler = ResumableSampler(len(self.train_set), self.generator, self.batch_size)
+        self.resident = resident
+        self._resident: tuple[torch.Tensor, ...] = ()
 
-    def train_dataloader(self) -> DataLoader:
+    def fit_device(self) -> torch.device:
+        """The device the attached Trainer fits on (the CPU when there is none)."""
+        trainer = self.trainer
+        return trainer.strategy.root_device if trainer is not None else torch.device("cpu")
+
+    def train_dataloader(self) -> DataLoader | DeviceBatches:
+        device = self.fit_device()
+        resident = device.type != "cpu" if self.resident is None else self.resident
+        if resident:
+            if not self._resident or self._resident[0].device != device:
+                self._resident = tuple(t.to(device) for t in self.train_set.tensors)
+            return DeviceBatches(self._resident, self.sampler, self.batch_size, self.generator)
         return DataLoader(
             self.train_set,
             batch_size=self.batch_size,
@@ -135,6 +159,7 @@ def train_classifier(
     num_classes: int = NUM_CLASSES,
     close_loggers: bool = True,
     init: BrailleClassifier | None = None,
+    resident: bool | None = None,
 ) -> BrailleClassifier:
     """Fit a :class:`BrailleClassifier` on foregrounds (N, C, S, S) and labels (N,).
 
@@ -146,6 +171,8 @@ def train_classifier(
     arguments (e.g. ``limit_train_batches``, ``accelerator``, ``enable_progress_bar``).
     Returns the model after the last epoch, in eval mode, on the CPU. With ``init`` the
     weights start from that model (fine-tuning, e.g. on a fraction of real data).
+    ``resident``: the training images live on the fit's device and batches are drawn
+    there (None: on an accelerator, not on the CPU); the batches and the result are the same.
     """
     config = config or ClassifierConfig()
     out_dir = Path(out_dir)
@@ -158,6 +185,7 @@ def train_classifier(
         num_workers=config.num_workers,
         seed=config.seed,
         val_fraction=config.val_fraction,
+        resident=resident,
     )
     model = _new_model(config, int(train_fg.shape[1]), num_classes, init)
     logger_list = list(loggers) if loggers is not None else [CSVLogger(str(out_dir), name="logs")]

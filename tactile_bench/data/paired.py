@@ -99,6 +99,15 @@ class Pairs:
         tensors = {k: _take(getattr(self, k), index) for k in self.PER_PAIR}
         return replace(self, **tensors, **self._subset_own(index))  # type: ignore[type-var]
 
+    def to(self: _P, device: torch.device | str) -> _P:
+        """The same pairs with every tensor (per pair, and the frames) on ``device``: moved
+        once, so the work that follows never copies them again."""
+        fields = (*self.PER_PAIR, *self.FRAMES)
+        moved = {
+            k: v.to(device) for k in fields if isinstance(v := getattr(self, k, None), torch.Tensor)
+        }
+        return replace(self, **moved)  # type: ignore[type-var]
+
     def _subset_own(self, index: torch.Tensor | slice) -> dict[str, Any]:
         """The subclass's per-pair fields that are not tensors, at ``index``."""
         return {}
@@ -119,6 +128,8 @@ class Pairs:
 
     def _positions(self, index: torch.Tensor | slice) -> list[int]:
         """The pair numbers ``index`` selects, in order: to subset plain lists alike."""
+        if isinstance(index, torch.Tensor):  # the pairs' tensors may be on an accelerator
+            index = index.cpu()
         return torch.arange(len(self))[index].tolist()
 
     # ------------------------------------------------------------------ foregrounds

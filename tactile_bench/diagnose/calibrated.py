@@ -46,6 +46,7 @@ from tactile_bench.diagnose.scene import (
 from tactile_bench.diagnose.simulate import render
 from tactile_bench.diagnose.which import explain_gap
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.hardware import compute_device
 from tactile_bench.io import atomic_write_json
 from tactile_bench.metrics.noise import estimate_pixel_noise
 from tactile_bench.sensor.background import sim_background
@@ -95,7 +96,7 @@ def area_strata(depth: torch.Tensor, strata: int) -> list[str]:
     alike in what the effects act on (a larger contact carries more of the gap), and for
     braille the area follows the number of dots, so it stands in for the character mix.
     """
-    area = (depth > 0).flatten(1).sum(1)
+    area = (depth > 0).flatten(1).sum(1).cpu()
     order = torch.argsort(area, stable=True)
     bins = torch.empty(len(depth), dtype=torch.long)
     bins[order] = torch.arange(len(depth)) * strata // max(len(depth), 1)
@@ -132,8 +133,9 @@ def _buffer(text: str) -> torch.Tensor:
 class CalibratedTranslator(SimTranslator):
     """Depth -> sim image + the effects the diagnosis fitted + measured noise. Unfitted: sim.
 
-    ``trainable`` stays False: the fit is a search, not Lightning training steps. It renders
-    on the CPU, with the diagnosis's fitted effects.
+    ``trainable`` stays False: the fit is a search, not Lightning training steps. The fit
+    runs on the device the trainer's ``accelerator`` names (the GPU when there is one), and
+    renders run where the depths are, with the diagnosis's fitted effects.
     """
 
     name = "calibrated"
@@ -144,7 +146,8 @@ class CalibratedTranslator(SimTranslator):
         for name in FITTED_BUFFERS:
             self.register_buffer(name, torch.zeros(0))
         self._record: dict[str, Any] = {}
-        self._cache: dict[str, torch.Tensor] = {}  # response lookups, refitted once a process
+        # response lookups by device, each refitted once a process
+        self._cache: dict[str, dict[str, torch.Tensor]] = {}
 
     @property
     def fitted(self) -> bool:
@@ -162,18 +165,22 @@ class CalibratedTranslator(SimTranslator):
         """Diagnose the gap of these pairs and keep the selected effects (module docstring).
 
         Writes ``out_dir/calibration.json`` (the diagnosis's full "which" result); returns
-        None: nothing is trained. ``trainer``'s ``enable_progress_bar`` shows the search.
+        None: nothing is trained. ``trainer``'s ``enable_progress_bar`` shows the search, its
+        ``accelerator`` says where it runs (``hardware.compute_device``): the pairs are moved
+        there once, and the fitted state is kept where this module is.
         """
         start = time.perf_counter()
         config: CalibratedConfig = self.config
         _check_pairs(depth, foreground)
-        depth, foreground = depth.float().clamp(min=0), foreground.float()
+        labels = area_strata(depth, config.strata)
+        device = compute_device((trainer or {}).get("accelerator"))
+        depth = depth.to(device).float().clamp(min=0)
+        foreground = foreground.to(device).float()
         size = int(depth.shape[-1])
-        background = sim_background(size)
+        background = sim_background(size).to(device)
         sim = self._render_plain(depth, background)
         real = foreground_to_image(foreground, background)
         n = len(depth)
-        labels = area_strata(depth, config.strata)
         data = DiagnosisPairs(
             depth, sim, real, background, None, labels, [f"{i:05d}" for i in range(n)]
         )
@@ -198,10 +205,10 @@ class CalibratedTranslator(SimTranslator):
         self._set_state(fit_reference(data, fit_idx), effects)
         real_std = estimate_pixel_noise(foreground)
         own_std = estimate_pixel_noise(self._model_foreground(depth, self._generator(None)))
-        added = torch.zeros(3)
+        added = torch.zeros(3, device=device)
         if real_std is not None and own_std is not None:
             added = (real_std.square() - own_std.square()).clamp(min=0.0).sqrt() * 255.0
-        self.noise_std = added.float()
+        self.noise_std = added.float().to(self.record.device)
         self._record = {
             "effects": effects,
             "unexplained": float(which.unexplained),
@@ -234,12 +241,13 @@ class CalibratedTranslator(SimTranslator):
     ) -> None:
         """Keep the lookup's fit pairs (only when ``optical_response`` needs them) and the
         sim optics model; renders share one cache of lookups fitted from them."""
-        empty = torch.zeros(0)
+        here = self.record.device  # the module's device, whatever the fit ran on
+        empty = torch.zeros(0, device=here)
         response = "optical_response" in effects
-        self.lookup_depth = reference.depth.clone() if response else empty
-        self.lookup_target = reference.real_change.clone() if response else empty
+        self.lookup_depth = reference.depth.to(here, copy=True) if response else empty
+        self.lookup_target = reference.real_change.to(here, copy=True) if response else empty
         table = reference.sim_optics.lookup
-        self.sim_table = empty if table is None else table.clone()
+        self.sim_table = empty if table is None else table.to(here, copy=True)
         self.noise_std = empty  # measured next, against the model's own noise
         self._record = {"effects": {k: dict(v) for k, v in effects.items()}}
         self._cache = {}
@@ -250,8 +258,8 @@ class CalibratedTranslator(SimTranslator):
 
     # ------------------------------------------------------------------ render
     def _render_plain(self, depth: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
-        """The simulator's noise-free image of each depth, in chunks."""
-        out = torch.empty(len(depth), 3, *depth.shape[-2:])
+        """The simulator's noise-free image of each depth, in chunks, on its device."""
+        out = torch.empty(len(depth), 3, *depth.shape[-2:], device=depth.device)
         for i in range(0, len(depth), self.config.chunk):
             out[i : i + self.config.chunk] = self.optics.render(
                 depth[i : i + self.config.chunk].float(), background, None
@@ -260,22 +268,25 @@ class CalibratedTranslator(SimTranslator):
 
     def _scene(self, depth: torch.Tensor, background: torch.Tensor) -> PairScene:
         """The candidate simulator's scene of ``depth`` (the diagnosis's ``make_scene`` of
-        noise-free sim images on ``background``), with the fit split's reference kept."""
+        noise-free sim images on ``background``), with the fit split's reference kept, on
+        ``depth``'s device."""
+        device = depth.device
         sim = self.optics.render(depth, background, None)
         names = [""] * len(depth)  # real is not read without a lookup split: sim stands in
-        table = self.sim_table if self.sim_table.numel() else None
+        table = self.sim_table.to(device) if self.sim_table.numel() else None
         reference = FitReference(
-            self.lookup_depth,
-            self.lookup_target,
+            self.lookup_depth.to(device),
+            self.lookup_target.to(device),
             SimOpticsChoice(table, math.nan, math.nan),
-            lookups=self._cache,
+            lookups=self._cache.setdefault(str(device), {}),
         )
         return make_scene(
             DiagnosisPairs(depth, sim, sim, background, None, names, names), None, reference
         )
 
     def _model_foreground(self, depth: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-        """Foregrounds (N, 3, S, S) of sim + effects + added noise, rendered in chunks."""
+        """Foregrounds (N, 3, S, S) of sim + effects + added noise, rendered in chunks on
+        ``depth``'s device (the draws come from ``generator``, on the CPU)."""
         size = int(depth.shape[-1])
         fitted_size = self._record.get("size", size)
         if size != fitted_size:
@@ -283,16 +294,21 @@ class CalibratedTranslator(SimTranslator):
                 f"translator {self.name!r}: fitted on {fitted_size} x {fitted_size} depths, "
                 f"got {size} x {size}"
             )
-        background = sim_background(size)
+        device = depth.device
+        background = sim_background(size).to(device)
         effects = self._record["effects"]
-        std = self.noise_std.float()[None, :, None, None] if self.noise_std.numel() else None
-        out = torch.empty(len(depth), 3, size, size)
+        std = (
+            self.noise_std.float().to(device)[None, :, None, None]
+            if self.noise_std.numel()
+            else None
+        )
+        out = torch.empty(len(depth), 3, size, size, device=device)
         with torch.no_grad():
             for i in range(0, len(depth), self.config.chunk):
-                part = depth[i : i + self.config.chunk].float().cpu().clamp(min=0)
+                part = depth[i : i + self.config.chunk].float().clamp(min=0)
                 image = render(self._scene(part, background), effects, generator)
                 if std is not None and bool((std > 0).any()):
-                    noise = torch.randn(image.shape, generator=generator)
+                    noise = torch.randn(image.shape, generator=generator).to(device)
                     image = (image + std * noise).clamp(0.0, 255.0)
                 out[i : i + len(part)] = image_to_foreground(image, background)
         return out
@@ -317,13 +333,13 @@ class CalibratedTranslator(SimTranslator):
         if not self.fitted:
             return super().translate(depth, background, generator)
         generator = self._generator(generator)
-        device, depth, background = depth.device, depth.cpu(), background.float().cpu()
-        out = torch.empty(len(depth), 3, *depth.shape[-2:])
+        background = background.float().to(depth.device)
+        out = torch.empty(len(depth), 3, *depth.shape[-2:], device=depth.device)
         for i in range(0, len(depth), self.config.chunk):
             part = slice(i, i + self.config.chunk)
             bg = background[part] if background.dim() == 4 else background
             out[part] = foreground_to_image(self._model_foreground(depth[part], generator), bg)
-        return out.to(device)
+        return out
 
     # ------------------------------------------------------------------ state
     def _load_from_state_dict(

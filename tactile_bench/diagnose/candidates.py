@@ -20,7 +20,7 @@ import torch.nn.functional as F
 
 from tactile_bench.diagnose.scene import OVERSAMPLE, PairScene, fine_scale
 from tactile_bench.effects import EFFECT_ORDER, EFFECTS, Effect, EffectContext, OpticalScene
-from tactile_bench.effects.base import ParamValue
+from tactile_bench.effects.base import ParamValue, as_tensor
 from tactile_bench.effects.camera import libjpeg
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.response_fit import predict_delta, response_design
@@ -169,12 +169,11 @@ class Registration(PoseCandidate):
         p = self.full_params(params)
         if all(isinstance(v, float | int) and v == 0 for v in p.values()):
             return scene
-        half = torch.tensor([scene.gel_mm[0] / 2, scene.gel_mm[1] / 2])
-        yaw = torch.deg2rad(torch.as_tensor(p["yaw_offset_deg"], dtype=torch.float32))
+        like = scene.delta
+        half = like.new_tensor([scene.gel_mm[0] / 2, scene.gel_mm[1] / 2])
+        yaw = torch.deg2rad(as_tensor(p["yaw_offset_deg"], like))
         cos, sin = torch.cos(yaw), torch.sin(yaw)
-        shift = torch.stack(
-            [torch.as_tensor(p["offset_x_mm"]), torch.as_tensor(p["offset_y_mm"])]
-        ).float()
+        shift = torch.stack([as_tensor(p["offset_x_mm"], like), as_tensor(p["offset_y_mm"], like)])
         # output point o (mm) samples the depth at R(-yaw) (o - shift), in [-1, 1] units
         r_inv = torch.stack([torch.stack([cos, sin]), torch.stack([-sin, cos])])
         a = r_inv * half[None, :] / half[:, None]
@@ -342,7 +341,7 @@ class MeasuredWear(OpticsCandidate):
             return light
         ratio = fine_scale(scene.measured[None]) / fine_scale(scene.sim_frame)
         transmission = ratio.mean(1, keepdim=True).clamp(1e-3, 1.0)
-        return light.replace(gain=light.gain * transmission ** torch.as_tensor(strength))
+        return light.replace(gain=light.gain * transmission ** as_tensor(strength, light.gain))
 
 
 class FittedResponse(OpticsCandidate):
@@ -362,7 +361,7 @@ class FittedResponse(OpticsCandidate):
             raise TactileBenchError(
                 "optical_response: no fitted lookup (the fit split's pairs were not given)"
             )
-        blend = torch.as_tensor(self.full_params(params)["blend"])
+        blend = as_tensor(self.full_params(params)["blend"], light.delta)
         fitted = predict_delta(light.height, scene.lookup, scene.gel_mm)
         return light.replace(delta=(1 - blend) * light.delta + blend * fitted)
 

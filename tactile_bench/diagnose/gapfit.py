@@ -122,7 +122,7 @@ def rounding_gap(target: Target, seed: int = 0) -> float:
     noise of one grey level's width (what storing a frame in 8 bits can change). Fits that
     differ by less explain the same thing as far as 8-bit frames can show."""
     gen = torch.Generator().manual_seed(seed)
-    noise = torch.rand(target.real.shape, generator=gen) - 0.5
+    noise = (torch.rand(target.real.shape, generator=gen) - 0.5).to(target.real.device)
     return float(pair_gap([target.real.float() + noise], target).mean())
 
 
@@ -178,7 +178,7 @@ def model_gap(
         for i in range(0, len(scene), chunk):
             idx = torch.arange(i, min(i + chunk, len(scene)))
             out.append(evaluate(scene.subset(idx), target.subset(idx), effects, seed + i, post))
-    return torch.cat(out) if out else torch.zeros(0)
+    return torch.cat(out) if out else scene.depth.new_zeros(0)
 
 
 @dataclass

@@ -45,7 +45,7 @@ def frame_variance(frames: torch.Tensor, free: torch.Tensor) -> torch.Tensor:
     """(3,) noise variance per channel of ``frames`` (N, 3, S, S), measured frame to frame
     where no contact is near (``free``, (N, 1, S, S)); 0 with too few frames or pixels."""
     sigma = estimate_pixel_noise(frames, free)
-    return torch.zeros(frames.shape[1]) if sigma is None else sigma.square()
+    return frames.new_zeros(frames.shape[1]).float() if sigma is None else sigma.square()
 
 
 def frozen_variance(
@@ -85,9 +85,9 @@ class FrameNoise:
         """Per-pair gap (N,) between two noisy copies of ``clean`` (N, 3, S, S): the
         candidate's noise on one, a real frame's on the other (white, Gaussian)."""
         if not bool((self.candidate + self.real).gt(0).any()):
-            return torch.zeros(len(clean))
+            return clean.new_zeros(len(clean))
         gen = torch.Generator().manual_seed(seed)
-        draw = torch.randn((2, *clean.shape), generator=gen)
+        draw = torch.randn((2, *clean.shape), generator=gen).to(clean.device)
         model = clean + draw[0] * self.candidate.sqrt()[:, None, None]
         real = clean + draw[1] * self.real.sqrt()[:, None, None]
         return pair_gap([model], Target.of(real))
@@ -108,7 +108,8 @@ class FrameNoise:
                 return images
             extra = (self.sim - have.square()).clamp(min=0.0).sqrt()
             gen = torch.Generator().manual_seed(seed + 104_729 * (draw + 1))
-            return images + torch.randn(images.shape, generator=gen) * extra[:, None, None]
+            noise = torch.randn(images.shape, generator=gen).to(images.device)
+            return images + noise * extra[:, None, None]
 
         return post
 

@@ -72,7 +72,7 @@ def shrink_ci(
     """Bootstrap 95% CI of ``1 - sum(after) / sum(before)`` over resampled pairs."""
     idx = _resampled(len(before), seed, n)
     shrink = 1 - after[idx].sum(1) / before[idx].sum(1).clamp(min=1e-12)
-    lo, hi = torch.quantile(shrink, torch.tensor([0.025, 0.975])).tolist()
+    lo, hi = torch.quantile(shrink, shrink.new_tensor([0.025, 0.975])).tolist()
     return float(lo), float(hi)
 
 
@@ -83,7 +83,7 @@ def paired_difference_ci(
     more of the gap ``a`` removes than ``b``, on the same held-out pairs."""
     idx = _resampled(len(before), seed, n)
     diff = (b[idx].sum(1) - a[idx].sum(1)) / before[idx].sum(1).clamp(min=1e-12)
-    lo, hi = torch.quantile(diff, torch.tensor([0.025, 0.975])).tolist()
+    lo, hi = torch.quantile(diff, diff.new_tensor([0.025, 0.975])).tolist()
     return float(lo), float(hi)
 
 

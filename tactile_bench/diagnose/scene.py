@@ -119,7 +119,7 @@ class PairScene:
 
     def with_latent(self, name: str, value: float) -> PairScene:
         """The same pairs with ``name``'s hidden per-pair value set to ``value`` for all."""
-        latent = {**self.latent, name: torch.full((len(self),), float(value))}
+        latent = {**self.latent, name: self.depth.new_full((len(self),), float(value))}
         return replace(self, latent=latent)
 
     def with_contact(self, depth: torch.Tensor, delta: torch.Tensor) -> PairScene:
@@ -129,8 +129,8 @@ class PairScene:
     def flat(self) -> PairScene:
         """One pair with no contact: the scene of the no-contact frame."""
         depth, delta = (
-            torch.zeros(1, 1, self.size, self.size),
-            torch.zeros(1, 3, self.size, self.size),
+            self.depth.new_zeros(1, 1, self.size, self.size),
+            self.depth.new_zeros(1, 3, self.size, self.size),
         )
         return replace(self, depth=depth, delta=delta, _shading={}, latent={})
 
@@ -201,7 +201,8 @@ def sim_optics_model(
     shaded = sim_shading(held_depth, background, gel_mm)  # over the sim's frame: it clamps
     builtin = float((shaded - held_delta).square().mean())
     try:
-        table = torch.as_tensor(fit_response(depth[:half], delta[:half], gel_mm)).float()
+        table = fit_response(depth[:half], delta[:half], gel_mm)
+        table = torch.as_tensor(table, device=depth.device).float()
     except ValueError:  # no contact in the first half
         return SimOpticsChoice(None, builtin, math.nan)
     with torch.no_grad():
@@ -209,7 +210,9 @@ def sim_optics_model(
     if fitted >= builtin:
         return SimOpticsChoice(None, builtin, fitted)
     return SimOpticsChoice(
-        torch.as_tensor(fit_response(depth, delta, gel_mm)).float(), builtin, fitted
+        torch.as_tensor(fit_response(depth, delta, gel_mm), device=depth.device).float(),
+        builtin,
+        fitted,
     )
 
 

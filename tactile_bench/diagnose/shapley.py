@@ -76,7 +76,7 @@ def shapley_shares(
     for player in players:
         share = float(point[player]) / base if base > 0 else 0.0
         ratio = draws[player] / resampled[frozenset()].clamp(min=1e-12)
-        lo, hi = torch.quantile(ratio, torch.tensor([0.025, 0.975], dtype=ratio.dtype)).tolist()
+        lo, hi = torch.quantile(ratio, ratio.new_tensor([0.025, 0.975])).tolist()
         # a percentile interval can miss its own estimate on degenerate data: it holds it
         out.append(ShapleyShare(player, share, min(lo, share), max(hi, share)))
     return out

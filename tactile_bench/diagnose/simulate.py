@@ -76,10 +76,11 @@ def lookup_for(scene: PairScene, geometry: Effects) -> torch.Tensor:
             height = _geometry_height(flat, geometry, None, scene.context(False))
         with torch.no_grad():
             try:
-                table = torch.as_tensor(fit_response(height, ref.real_change, scene.gel_mm))
+                table = fit_response(height, ref.real_change, scene.gel_mm)
+                table = torch.as_tensor(table, device=height.device)
             except ValueError:  # no contact in the fit split: the lookup predicts no change
                 n_cols = response_design(height[:1, :, :2, :2], scene.gel_mm).shape[-1]
-                table = torch.zeros(n_cols // 6, 3, 6)
+                table = height.new_zeros(n_cols // 6, 3, 6)
         ref.lookups[key] = table.float()
     return ref.lookups[key]
 
@@ -159,7 +160,7 @@ def render(
     contact = _through_sensor(scene, effects, height, delta, ctx)
     if contact.shape[0] != len(scene):
         contact = contact.expand(len(scene), -1, -1, -1)
-    no_contact = torch.zeros(1, 1, scene.size, scene.size)
+    no_contact = scene.depth.new_zeros(1, 1, scene.size, scene.size)
     flat = _through_sensor(scene, effects, no_contact, None, ctx)
     measured = scene.background
     frames = Composite(measured + (contact - flat), flat, measured)

@@ -59,12 +59,14 @@ def region_masks(depth: torch.Tensor, contact_mm: float, rim_px: int) -> torch.T
     return torch.cat([contact, rim, ~grown], 1)
 
 
-def band_index(size_h: int, size_w: int) -> tuple[torch.Tensor, list[str]]:
-    """(H, W) band number of every 2-D FFT frequency, and the band names."""
-    fy = torch.fft.fftfreq(size_h) * size_h  # cycles per frame
-    fx = torch.fft.fftfreq(size_w) * size_w
+def band_index(
+    size_h: int, size_w: int, device: torch.device | str = "cpu"
+) -> tuple[torch.Tensor, list[str]]:
+    """(H, W) band number of every 2-D FFT frequency on ``device``, and the band names."""
+    fy = torch.fft.fftfreq(size_h, device=device) * size_h  # cycles per frame
+    fx = torch.fft.fftfreq(size_w, device=device) * size_w
     radius = torch.sqrt(fy[:, None] ** 2 + fx[None, :] ** 2)
-    edges = torch.tensor(BAND_EDGES[1:])
+    edges = torch.tensor(BAND_EDGES[1:], device=device)
     index = torch.bucketize(radius, edges, right=False) + 1  # (0, 2] -> 1, ...
     index[radius == 0] = 0
     names = ["DC (uniform offset)"]
@@ -115,16 +117,17 @@ def _parts(
 def _accumulate(
     data: DiagnosisPairs, contact_mm: float, rim_px: int, chunk: int
 ) -> dict[str, torch.Tensor]:
-    """Every sum the axes are split from, in one pass over the pairs, ``chunk`` at a time."""
+    """Every sum the axes are split from, in one pass over the pairs, ``chunk`` at a time,
+    on the pairs' device."""
     n, _, h, w = data.sim.shape
-    bands, band_names = band_index(h, w)
-    radius_k = torch.sqrt(
-        (torch.fft.fftfreq(h) * h)[:, None] ** 2 + (torch.fft.fftfreq(w) * w)[None, :] ** 2
-    )
+    device = data.sim.device
+    bands, band_names = band_index(h, w, device)
+    fy, fx = torch.fft.fftfreq(h, device=device) * h, torch.fft.fftfreq(w, device=device) * w
+    radius_k = torch.sqrt(fy[:, None] ** 2 + fx[None, :] ** 2)
     radial_bin = radius_k.round().long().clamp(max=int(math.ceil(radius_k.max())))
 
     def zeros(*shape: int) -> torch.Tensor:
-        return torch.zeros(*shape, dtype=torch.float64)
+        return torch.zeros(*shape, dtype=torch.float64, device=device)
 
     acc = {
         "region_err": zeros(3),
@@ -211,7 +214,7 @@ def analyse_where(
     """
     n, _, h, w = data.sim.shape
     rim_px = rim_width_px(w) if rim_px is None else rim_px
-    acc = _accumulate(data, contact_mm, rim_px, chunk)
+    acc = {k: v.cpu() for k, v in _accumulate(data, contact_mm, rim_px, chunk).items()}
     axes = _axes(data, acc)
     summary: dict[str, Any] = {
         "n_pairs": n,

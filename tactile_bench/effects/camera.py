@@ -169,9 +169,9 @@ class GammaWhiteBalance(Effect):
         """The light that gave the processed frame ``y`` (the curve is pointwise and
         monotone): a measured frame's level before the camera's processing, where a contact's
         change of light adds. Clipped levels stay at the clip."""
-        one = torch.ones(())
-        wb = torch.stack([as_tensor(p["wb_r"]), one, as_tensor(p["wb_b"])]).view(1, 3, 1, 1)
-        return 255.0 * (y / 255.0).clamp(1e-4, 1.0) ** as_tensor(p["gamma"]) / wb
+        one = torch.ones((), device=y.device)
+        wb = torch.stack([as_tensor(p["wb_r"], y), one, as_tensor(p["wb_b"], y)]).view(1, 3, 1, 1)
+        return 255.0 * (y / 255.0).clamp(1e-4, 1.0) ** as_tensor(p["gamma"], y) / wb
 
 
 # --------------------------------------------------------------------------- JPEG
@@ -346,14 +346,14 @@ def libjpeg(x: torch.Tensor, quality: float) -> torch.Tensor:
     encoder that writes datasets' files (libjpeg through Pillow: 4:2:0, Annex K tables
     scaled by ``quality``). Exact where ``jpeg_approx`` approximates; the gradient passes
     straight through (as the approximation's rounding does)."""
-    pixels = x.detach().clamp(0.0, 255.0).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    pixels = x.detach().clamp(0.0, 255.0).round().to(torch.uint8).permute(0, 2, 3, 1).cpu().numpy()
     out = []
     for frame in pixels:
         buf = io.BytesIO()
         Image.fromarray(frame).save(buf, format="JPEG", quality=int(round(quality)))
         with Image.open(buf) as im:
             out.append(torch.from_numpy(np.asarray(im.convert("RGB")).copy()))
-    coded = torch.stack(out).permute(0, 3, 1, 2).to(x.dtype)
+    coded = torch.stack(out).permute(0, 3, 1, 2).to(x.device, x.dtype)
     return x + (coded - x).detach() if x.requires_grad else coded
 
 

@@ -56,8 +56,8 @@ def fit_response(
     if surface.shape[0] != delta.shape[0] or surface.shape[-2:] != delta.shape[-2:]:
         raise ValueError(f"surface {tuple(surface.shape)} and delta {tuple(delta.shape)} differ")
     n_cols = response_design(surface[:1, :, :2, :2], gel_mm).shape[-1]
-    xtx = torch.zeros(n_cols, n_cols, dtype=torch.float64)
-    xty = torch.zeros(n_cols, 3, dtype=torch.float64)
+    xtx = torch.zeros(n_cols, n_cols, dtype=torch.float64, device=surface.device)
+    xty = torch.zeros(n_cols, 3, dtype=torch.float64, device=surface.device)
     for k in range(0, surface.shape[0], chunk):
         x = response_design(surface[k : k + chunk], gel_mm).reshape(-1, n_cols)
         y = delta[k : k + chunk].permute(0, 2, 3, 1).reshape(-1, 3).float()
@@ -66,9 +66,9 @@ def fit_response(
     if not bool(torch.diagonal(xtx).gt(0).any()):
         raise ValueError("fit_response: no pixel has a contact or a slope to fit on")
     lam = ridge * float(torch.diagonal(xtx).mean())
-    w = torch.linalg.solve(xtx + lam * torch.eye(n_cols, dtype=xtx.dtype), xty)
+    w = torch.linalg.solve(xtx + lam * torch.eye(n_cols, dtype=xtx.dtype, device=xtx.device), xty)
     n_feat = w.shape[0] // 6
-    return w.reshape(n_feat, 6, 3).permute(0, 2, 1).numpy()  # (F, 3, 6)
+    return w.reshape(n_feat, 6, 3).permute(0, 2, 1).cpu().numpy()  # (F, 3, 6)
 
 
 def predict_delta(
@@ -79,7 +79,7 @@ def predict_delta(
     The surrogate's own fast path (``effects.optics.response_image``): no (N, H, W, F * 6)
     design is ever held, which lets the diagnosis render it at every fit step.
     """
-    w = torch.as_tensor(np.asarray(weights), dtype=torch.float32)
+    w = torch.as_tensor(weights, dtype=torch.float32, device=surface.device)
     ctx = EffectContext(gel_mm[0], gel_mm[1], False)
     gx, gy = surface_gradient(surface.float(), ctx)
     contact = (surface.float() / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
