@@ -384,6 +384,8 @@ class CameraCandidate(Candidate):
     measured frame (which already went through the real camera)."""
 
     acts_on = "camera"
+    #: it acts on the whole frame, so the no-contact frame shows it (``diagnose.no_contact``)
+    on_no_contact_frame: ClassVar[bool] = True
 
     def through_sensor(
         self, image: torch.Tensor, params: Params, ctx: EffectContext
@@ -402,6 +404,8 @@ class CameraCandidate(Candidate):
 
 class NonlinearCamera(CameraCandidate):
     """A camera step that is not linear in the light: it acts on the composite."""
+
+    on_no_contact_frame = False  # modelled on the composite, not on the sim's frame alone
 
     def through_sensor(
         self, image: torch.Tensor, params: Params, ctx: EffectContext

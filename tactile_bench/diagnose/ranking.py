@@ -12,10 +12,14 @@ import torch
 
 from tactile_bench.diagnose.candidates import get_candidate
 from tactile_bench.diagnose.gapfit import PostDraw, Target, model_gap
+from tactile_bench.diagnose.no_contact import FrameCheck, FrameReading
 from tactile_bench.diagnose.scene import PairScene
 from tactile_bench.diagnose.simulate import render
 
 BOOTSTRAP = 500
+#: an option removing this share of what is left is a rival explanation across the lens /
+#: gel line when the no-contact frame cannot read the lens
+STRONG_RIVAL = 0.25
 # RMS of 8-bit rounding (1/sqrt(12) grey level): fitted images closer than this are the
 # same image as far as 8-bit frames can show
 PIXEL_NOISE = 1 / math.sqrt(12)
@@ -39,6 +43,9 @@ class EffectFit:
     # bootstrap 95% CI of (rival's gap - this one's) / gap_before reaches 0
     confusable_with: list[str] = field(default_factory=list)
     separate_by: str = ""  # what measurement would tell them apart
+    # a camera effect's reading on the no-contact frame at these parameters (None: not one
+    # the frame shows)
+    no_contact: FrameReading | None = None
 
     @classmethod
     def measure(
@@ -211,8 +218,10 @@ def pick_effect(
     them (the one-standard-error rule: Hastie, Tibshirani & Friedman, *The Elements of
     Statistical Learning*, sec. 7.10). An effect that fails ``denoise`` is passed over for
     the next best. It passes when it removes ``threshold`` of the gap and its interval's
-    lower end is above 0."""
+    lower end is above 0. Between a lens and a gel effect that both pass, the no-contact
+    frame decides where it can read the lens (``with_frame``)."""
     images = FittedImages(options, selected, scene)
+    frames = FrameCheck(scene, {n: p for n, (p, _) in options.items()}, selected, seed)
     passed_over: list[str] = []
 
     def row_of(name: str) -> EffectFit:
@@ -228,8 +237,9 @@ def pick_effect(
         passed_over.append(row.effect)
         return False
 
+    order = sorted(options, key=lambda n: float(options[n][1].mean()))
     best_row = None
-    for name in sorted(options, key=lambda n: float(options[n][1].mean())):
+    for name in order:
         row = row_of(name)
         if row.gap_before - row.gap_after < threshold or row.ci_low <= 0:
             break
@@ -242,8 +252,41 @@ def pick_effect(
     if simplest != best_row.effect:
         alternative = row_of(simplest)
         if acceptable(alternative):
-            return Pick(alternative, tuple(passed_over))
-    return Pick(best_row, tuple(passed_over))
+            best_row = alternative
+    for name in order:
+        if frames.prefers(name, best_row.effect):
+            row = row_of(name)
+            if acceptable(row):
+                best_row = row
+                break
+    return Pick(with_frame(best_row, options, current, frames), tuple(passed_over))
+
+
+def with_frame(
+    row: EffectFit, options: Options, current: torch.Tensor, frames: FrameCheck
+) -> EffectFit:
+    """``row`` with its no-contact frame reading, and with the strong rivals across the lens /
+    gel line it cannot be told from when the frame cannot read the lens: on the contacts
+    alone a lens blur and a gel's spread both widen the trace, and the fit that widens
+    more wins whatever widened it. Strong: removes ``STRONG_RIVAL`` of what is left."""
+    reading = frames.reading(row.effect)
+    if reading is not None:
+        row = replace(row, no_contact=reading)
+    now = float(current.mean())
+    rivals, missing = [], []
+    for name, (_, after) in options.items():
+        if name == row.effect or name in row.confusable_with:
+            continue
+        if now - float(after.mean()) < STRONG_RIVAL * now:
+            continue
+        what = frames.cannot_read(row.effect, name)
+        if what:
+            rivals.append(name)
+            missing.append(what)
+    if not rivals:
+        return row
+    separate_by = "; ".join(dict.fromkeys([*missing, *filter(None, [row.separate_by])]))
+    return replace(row, confusable_with=[*row.confusable_with, *rivals], separate_by=separate_by)
 
 
 def _simplest(row: EffectFit, options: Options, scene: PairScene, rounding: float) -> str:

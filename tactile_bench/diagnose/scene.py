@@ -81,6 +81,8 @@ class PairScene:
     # measured one when the sim was composited onto it)
     sim_frame: torch.Tensor
     gel_mm: tuple[float, float] = (GEL.width_mm, GEL.height_mm)  # the view the images cover
+    # False when the sim was composited onto the measured frame: ``sim_frame`` is not its own
+    sim_frame_given: bool = True
     reference: FitReference | None = None  # shared by every scene of one diagnosis
     latent: dict[str, torch.Tensor] = field(default_factory=dict)  # per-pair hidden values
     baked: dict[str, dict[str, float]] = field(default_factory=dict)  # geometry in ``depth``
@@ -181,6 +183,7 @@ def make_scene(
         measured=measured,
         sim_frame=sim_bg,
         gel_mm=tuple(data.gel_mm),
+        sim_frame_given=data.sim_background is not None,
         reference=reference,
     )
 
