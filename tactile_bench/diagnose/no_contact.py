@@ -44,7 +44,10 @@ MISSING: dict[str, str] = {
     "decide): a lens blurs all it sees, a gel's geometry changes only where it is pressed",
 }
 BOOTSTRAP = 500
-BORDER = 8  # px left out at each edge (3 x the smooth field's sigma); 1/8 of a small frame
+#: the smooth field a frame's texture is taken over: a Gaussian of this sigma at 64 px,
+#: scaled with the frame (a falloff's curvature then drops out at every size); 3 sigma
+#: are left out at each edge, where the field's padding is not the frame's
+SMOOTH_PX, REF_SIZE = 3.0, 64
 #: an effect reads on the frame when it changes the stored frame's texture by this many
 #: times what 8-bit rounding noise (uniform, one grey level wide) changes
 ABOVE_ROUNDING = 2.0
@@ -85,9 +88,10 @@ def reads_frame(name: str) -> bool:
 def _texture(frame: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
     """(2 scales, 2, 3, W) windows' gradient strengths of ``frame`` (1, 3, S, S) over its
     smooth field, at ``level`` (3,) grey levels (a gain or a smooth falloff drops out),
-    ``BORDER`` px from the edges (where the smooth field's padding is not the frame's)."""
-    flat = fine_scale(frame) * level[None, :, None, None]
-    border = min(BORDER, frame.shape[-1] // 8, frame.shape[-2] // 8)
+    away from the edges (``SMOOTH_PX``)."""
+    sigma = SMOOTH_PX * min(frame.shape[-2:]) / REF_SIZE
+    flat = fine_scale(frame, sigma) * level[None, :, None, None]
+    border = math.ceil(3 * sigma)
     inner = flat[..., border : flat.shape[-2] - border, border : flat.shape[-1] - border]
     _, rms = _features(inner)
     return torch.stack([r.reshape(2, 3, -1) for r in rms])
