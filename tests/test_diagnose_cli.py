@@ -6,6 +6,7 @@ stand-in (a fitted per-channel offset) to check the report's plumbing against a 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -15,6 +16,7 @@ import torch
 from tactile_bench.cli import main
 from tactile_bench.data.braille import BrailleSet
 from tactile_bench.diagnose.commands import summary_lines
+from tactile_bench.diagnose.no_contact import CONFIRMS, NO_SIM_FRAME, FrameReading
 from tactile_bench.diagnose.paired import DiagnosisPairs, load_paired, write_paired
 from tactile_bench.diagnose.ranking import EffectFit
 from tactile_bench.diagnose.result import Diagnosis, Split
@@ -265,10 +267,21 @@ def test_first_lines_show_the_background_line_sim_optics_and_confusable_sets() -
     assert lines[1].startswith("background:") and "0.420 [0.400, 0.440]" in lines[1]
     assert lines[2].startswith("sim optics for geometry effects: fitted lookup")
     assert lines[3] == (
-        "confusable: vignetting ~ optical_response (the held-out pairs cannot tell them apart)"
+        "confusable: vignetting ~ optical_response (the data at hand cannot tell them apart)"
     )
     composited = _diagnosis(ranking=[fit], background_note="the sim was composited")
     assert summary_lines(composited)[1] == "background: the sim was composited"
+
+
+def test_the_ranking_shows_what_the_no_contact_frame_says_of_a_lens() -> None:
+    reading = FrameReading(CONFIRMS, 5.8, 0.3, 0.95, 4.8, 6.1, 3.8, 0.07)
+    fit = EffectFit("defocus_blur", {"sigma_mm": 0.2}, 2.0, 0.8, 0.6, 0.5, 0.7, no_contact=reading)
+    text = "\n".join(summary_lines(_diagnosis(ranking=[fit])))
+    assert "no-contact frame: confirms (texture gap 5.8 -> 0.3 grey level^2" in text
+    unread = dataclasses.replace(fit, no_contact=FrameReading(NO_SIM_FRAME))
+    assert "no-contact frame: no sim no-contact frame" in "\n".join(
+        summary_lines(_diagnosis(ranking=[unread]))
+    )
 
 
 def test_the_summary_says_unexplained_is_counted_above_the_pairs_noise() -> None:

@@ -8,6 +8,7 @@ imports its machinery when it runs.
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -15,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from tactile_bench.errors import TactileBenchError
 
 if TYPE_CHECKING:  # the parsers load without torch: the types are for reading only
+    from tactile_bench.diagnose.no_contact import FrameReading
     from tactile_bench.diagnose.result import Diagnosis
     from tactile_bench.diagnose.shrink import HowFar
     from tactile_bench.diagnose.which import WhichResult
@@ -59,7 +61,7 @@ def _first_lines(which: WhichResult) -> list[str]:
         if fit.confusable_with:
             lines.append(
                 f"confusable: {fit.effect} ~ {', '.join(fit.confusable_with)} "
-                "(the held-out pairs cannot tell them apart)"
+                "(the data at hand cannot tell them apart)"
             )
     return lines
 
@@ -72,6 +74,8 @@ def _ranking_lines(which: WhichResult) -> list[str]:
             f"  {fit.effect:<20} shrink {fit.shrink:.3f} [{fit.ci_low:.3f}, {fit.ci_high:.3f}]"
             f"  gap {fit.gap_before:.4g} -> {fit.gap_after:.4g}"
         )
+        if fit.no_contact is not None:
+            lines.append(f"    {frame_line(fit.no_contact)}")
         if fit.confusable_with:
             lines.append(
                 f"    not told apart from: {', '.join(fit.confusable_with)} "
@@ -92,6 +96,17 @@ def _ranking_lines(which: WhichResult) -> list[str]:
             "own noise, which the real frames have less of)"
         )
     return lines
+
+
+def frame_line(reading: FrameReading) -> str:
+    """What the no-contact frame says of a selected lens effect, in one line."""
+    if not reading.decides and math.isnan(reading.ci_low):
+        return f"no-contact frame: {reading.status}"
+    return (
+        f"no-contact frame: {reading.status} (texture gap {reading.gap_before:.3g} -> "
+        f"{reading.gap_after:.3g} grey level^2 with it; removed 95% CI "
+        f"[{reading.ci_low:.3g}, {reading.ci_high:.3g}])"
+    )
 
 
 def _residual_lines(which: WhichResult) -> list[str]:

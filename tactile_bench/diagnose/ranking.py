@@ -40,7 +40,8 @@ class EffectFit:
     ci_low: float  # bootstrap 95% CI of shrink (resampling held-out pairs)
     ci_high: float
     # rivals at the same round the held-out pairs cannot tell from this one: the paired
-    # bootstrap 95% CI of (rival's gap - this one's) / gap_before reaches 0
+    # bootstrap 95% CI of (rival's gap - this one's) / gap_before reaches 0; or a strong
+    # rival across the lens / gel line when the no-contact frame cannot read the lens
     confusable_with: list[str] = field(default_factory=list)
     separate_by: str = ""  # what measurement would tell them apart
     # a camera effect's reading on the no-contact frame at these parameters (None: not one
