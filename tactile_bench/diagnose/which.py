@@ -46,6 +46,7 @@ from tactile_bench.diagnose.gapfit import (
     model_gap,
     rounding_gap,
 )
+from tactile_bench.diagnose.no_contact import MISSING
 from tactile_bench.diagnose.noise import FrameNoise, frame_noise
 from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.ranking import (
@@ -440,9 +441,10 @@ def _swapped_rivals(
                 found.append(rival)
         if found:
             rivals = [*row.confusable_with, *found]
-            row = replace(
-                row, confusable_with=rivals, separate_by=separating_measurement(row.effect, rivals)
-            )
+            # what the round named missing of the no-contact frame stays
+            missing = [h for h in row.separate_by.split("; ") if h in MISSING.values()]
+            hints = [*missing, separating_measurement(row.effect, rivals)]
+            row = replace(row, confusable_with=rivals, separate_by="; ".join(hints))
         out.append(row)
     return out
 
