@@ -148,12 +148,12 @@ def read_frame(
         after = window_gap(after_frame, measured, level)
         change = float(window_gap(after_frame, before_frame, level).mean())
         gen = torch.Generator().manual_seed(seed)
-        dither = torch.rand(before_frame.shape, generator=gen) - 0.5
+        dither = (torch.rand(before_frame.shape, generator=gen) - 0.5).to(before_frame.device)
         rounding = float(window_gap(before_frame + dither, before_frame, level).mean())
     b, a = float(before.mean()), float(after.mean())
     if change <= ABOVE_ROUNDING * rounding:
         return FrameReading(NO_TEXTURE, b, a, change=change, rounding=rounding)
-    lo, hi = _removed_ci(before, after, seed)
+    lo, hi = _removed_ci(before.cpu(), after.cpu(), seed)
     status = CONFIRMS if lo > 0 else CONTRADICTS if hi < 0 else UNDECIDED
     credit = (b - a) / b if b > 0 else -math.inf
     return FrameReading(status, b, a, credit, lo, hi, change, rounding)
@@ -164,14 +164,15 @@ def changes_texture(scene: PairScene, name: str, params: Mapping[str, float], se
     noise of 16 grey levels about 128, the scene's size) beyond 8-bit rounding: a blur does, a
     smooth gain does not, and for it the frame's texture is no evidence either way."""
     gen = torch.Generator().manual_seed(seed)
-    probe = 120.0 + 16.0 * torch.rand(1, 3, scene.size, scene.size, generator=gen)
-    level = torch.full((3,), 128.0)
+    device = scene.sim_frame.device
+    probe = (120.0 + 16.0 * torch.rand(1, 3, scene.size, scene.size, generator=gen)).to(device)
+    level = probe.new_full((3,), 128.0)
     cand = get_candidate(name)
     assert isinstance(cand, CameraCandidate)
     with torch.no_grad():
         through = cand.through_sensor(probe, params, scene.context(stochastic=False))
         change = float(window_gap(through, probe, level).mean())
-        dither = torch.rand(probe.shape, generator=gen) - 0.5
+        dither = (torch.rand(probe.shape, generator=gen) - 0.5).to(device)
         rounding = float(window_gap(probe + dither, probe, level).mean())
     return change > ABOVE_ROUNDING * rounding
 
