@@ -33,7 +33,7 @@ def pair_gap_product(draws: list[torch.Tensor], target: gapfit.Target) -> torch.
     """``gapfit.pair_gap`` with the texture term of two draws as an unbiased product."""
     if len(draws) == 1:
         return AVERAGED(draws, target)
-    (low_a, tex_a), (low_b, tex_b) = (gapfit._features(d) for d in draws)
+    (low_a, tex_a), (low_b, tex_b) = (gapfit.gap_features(d) for d in draws)
     structure = ((low_a - target.low) * (low_b - target.low)).mean((1, 2, 3))
     texture = torch.zeros_like(structure)
     for a, b, real in zip(tex_a, tex_b, target.rms, strict=True):

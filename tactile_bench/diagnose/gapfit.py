@@ -73,7 +73,7 @@ def _oriented_rms(x: torch.Tensor, window: int) -> torch.Tensor:
     return torch.stack([half_trace + radius, (half_trace - radius).clamp(min=0.0)]).add(1.0).sqrt()
 
 
-def _features(x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+def gap_features(x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
     """(low-passed image at half size, oriented gradient RMS at two scales) of (N, 3, S, S).
 
     All but the full-size gradients run at half size: the metric costs a few ms per hundred
@@ -93,7 +93,7 @@ class Target:
 
     @classmethod
     def of(cls, real: torch.Tensor) -> Target:
-        low, rms = _features(real.float())
+        low, rms = gap_features(real.float())
         return cls(real, low, rms)
 
     def subset(self, idx: torch.Tensor) -> Target:
@@ -105,7 +105,7 @@ class Target:
 
 def pair_gap(draws: list[torch.Tensor], target: Target) -> torch.Tensor:
     """Gap (N,) of each pair: one draw for a deterministic sim', two for a stochastic one."""
-    feats = [_features(d) for d in draws]
+    feats = [gap_features(d) for d in draws]
     if len(draws) == 1:
         structure = (feats[0][0] - target.low).square().mean((1, 2, 3))
     else:

@@ -27,7 +27,7 @@ from typing import Any
 import torch
 
 from tactile_bench.diagnose.candidates import CameraCandidate, get_candidate
-from tactile_bench.diagnose.gapfit import _features
+from tactile_bench.diagnose.gapfit import gap_features
 from tactile_bench.diagnose.scene import PairScene, fine_scale
 from tactile_bench.effects import EFFECT_ORDER
 
@@ -93,7 +93,7 @@ def _texture(frame: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
     flat = fine_scale(frame, sigma) * level[None, :, None, None]
     border = math.ceil(3 * sigma)
     inner = flat[..., border : flat.shape[-2] - border, border : flat.shape[-1] - border]
-    _, rms = _features(inner)
+    _, rms = gap_features(inner)
     return torch.stack([r.reshape(2, 3, -1) for r in rms])
 
 

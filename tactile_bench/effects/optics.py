@@ -74,7 +74,7 @@ def sensor_optics(sensor: str) -> tuple[torch.Tensor, tuple[float, ...]]:
     return SENSOR_OPTICS[sensor]
 
 
-def _features(gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
+def response_features(gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
     """(*, F) features of the compact model: contact offset, t^j x direction harmonics."""
     r = torch.sqrt(gx**2 + gy**2 + 1e-12)
     t = torch.atan(r) * (2 / math.pi)
@@ -92,7 +92,7 @@ def _features(gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor) -> torc
     return torch.stack(feats, -1)
 
 
-def _position_basis(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+def position_basis(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.ones_like(u), u, v, u**2, v**2, u * v], -1)
 
 
@@ -111,8 +111,8 @@ def fitted_response(
     ``contact`` in [0, 1] scales the flat-contact offset term. Inputs broadcast together.
     """
     gx, gy, u, v, contact = torch.broadcast_tensors(gx, gy, u, v, contact)
-    f = _features(gx, gy, contact)
-    pos = _position_basis(u, v)
+    f = response_features(gx, gy, contact)
+    pos = position_basis(u, v)
     weights = sensor_optics(sensor)[0]
     return torch.einsum("...f,fcq,...q->c...", f, weights.to(f), pos)
 
@@ -121,7 +121,7 @@ def response_fields(weights: torch.Tensor, h: int, w: int) -> torch.Tensor:
     """(F, 3, H, W): each feature's per-channel position field for ``weights`` (F, 3, 6),
     on ``weights``' device."""
     uu, vv = pixel_grid(h, w, weights.device)
-    return torch.einsum("fcq,hwq->fchw", weights, _position_basis(uu, vv)).contiguous()
+    return torch.einsum("fcq,hwq->fchw", weights, position_basis(uu, vv)).contiguous()
 
 
 @lru_cache(maxsize=8)

@@ -17,8 +17,8 @@ from tactile_bench.effects.base import EffectContext
 from tactile_bench.effects.kernels import pixel_grid, surface_gradient
 from tactile_bench.effects.optics import (
     CONTACT_OFFSET_MM,
-    _features,
-    _position_basis,
+    position_basis,
+    response_features,
     response_fields,
     response_image,
 )
@@ -31,9 +31,9 @@ def response_design(surface: torch.Tensor, gel_mm: tuple[float, float]) -> torch
     ctx = EffectContext(gel_mm[0], gel_mm[1], False)
     gx, gy = surface_gradient(surface.float(), ctx)
     contact = (surface.float() / CONTACT_OFFSET_MM).clamp(0.0, 1.0)
-    feats = _features(gx[:, 0], gy[:, 0], contact[:, 0])  # (N, H, W, F)
+    feats = response_features(gx[:, 0], gy[:, 0], contact[:, 0])  # (N, H, W, F)
     uu, vv = pixel_grid(*surface.shape[-2:], surface.device)
-    pos = _position_basis(uu, vv)  # (H, W, 6)
+    pos = position_basis(uu, vv)  # (H, W, 6)
     return (feats[..., :, None] * pos[None, :, :, None, :]).flatten(-2)
 
 
