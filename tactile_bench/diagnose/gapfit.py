@@ -96,7 +96,7 @@ class Target:
         low, rms = gap_features(real.float())
         return cls(real, low, rms)
 
-    def subset(self, idx: torch.Tensor) -> Target:
+    def subset(self, idx: torch.Tensor | slice) -> Target:
         return Target(self.real[idx], self.low[idx], [r[:, idx] for r in self.rms])
 
     def __len__(self) -> int:
@@ -176,8 +176,8 @@ def model_gap(
     out = []
     with torch.no_grad():
         for i in range(0, len(scene), chunk):
-            idx = torch.arange(i, min(i + chunk, len(scene)))
-            out.append(evaluate(scene.subset(idx), target.subset(idx), effects, seed + i, post))
+            part = slice(i, i + chunk)  # views of the pairs, wherever they live
+            out.append(evaluate(scene.subset(part), target.subset(part), effects, seed + i, post))
     return torch.cat(out) if out else scene.depth.new_zeros(0)
 
 

@@ -112,7 +112,7 @@ class PairScene:
         """The effects' context for these pairs: their gel view."""
         return EffectContext(self.gel_mm[0], self.gel_mm[1], stochastic)
 
-    def subset(self, idx: torch.Tensor) -> PairScene:
+    def subset(self, idx: torch.Tensor | slice) -> PairScene:
         shading = {k: v[idx] for k, v in self._shading.items()}
         latent = {k: v[idx] for k, v in self.latent.items()}
         return replace(
