@@ -186,6 +186,19 @@ def test_a_blur_blamed_on_the_spread_with_confidence_fails() -> None:
     assert verdict(case, named)["passed"]
 
 
+def test_the_summary_counts_lens_and_gel_cases_told_apart() -> None:
+    case = Case("lens", "named_or_confusable", ["defocus_blur"], required=("defocus_blur",))
+    said = {"selected": ["elastic_spread"], "confusable": {"elastic_spread": ["defocus_blur"]}}
+    blamed = {"selected": ["elastic_spread"], "confusable": {}}
+    rows = [{**r, "kind": case.kind, **verdict(case, r)} for r in (said, blamed)]
+    summary = summarise(rows)
+    assert (summary["n_told_apart"], summary["told_apart"]) == (2, 1)
+    lines = markdown(
+        {**summary, "n_pairs": 2, "size": 32, "seed": 0, "quick": True, "seconds": 1}, []
+    )
+    assert "found confusable (never blamed on the other): 1/2" in lines
+
+
 def test_one_foreign_case_end_to_end(bank) -> None:
     keep = ("vignetting", "led_diffusivity", "defocus_blur", "camera_noise")
     case = Case(

@@ -131,7 +131,14 @@ def _summary_lines(s: dict[str, Any]) -> list[str]:
         f"- out-of-catalogue plants flagged: {s['out_flagged']}/{s['n_out']};"
         f" blamed on a wrong effect with high confidence: {s['out_blamed_high_confidence']} "
         f"(target 0: {'met' if s['out_blamed_high_confidence'] == 0 else 'NOT met'})",
-    ]
+    ] + (
+        [
+            f"- lens blur and blur + elastic spread plants with each effect named or found "
+            f"confusable (never blamed on the other): {s['told_apart']}/{s['n_told_apart']}"
+        ]
+        if s.get("n_told_apart")
+        else []
+    )
 
 
 def _case_table(rows: list[dict[str, Any]]) -> list[str]:
