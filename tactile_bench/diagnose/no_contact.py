@@ -26,6 +26,7 @@ from typing import Any
 
 import torch
 
+from tactile_bench.diagnose.bootstrap import interval95, resampled
 from tactile_bench.diagnose.candidates import CameraCandidate, get_candidate
 from tactile_bench.diagnose.gapfit import gap_features
 from tactile_bench.diagnose.scene import PairScene, fine_scale
@@ -43,7 +44,6 @@ MISSING: dict[str, str] = {
     UNDECIDED: "a no-contact frame with more texture, sim and measured (this one's does not "
     "decide): a lens blurs all it sees, a gel's geometry changes only where it is pressed",
 }
-BOOTSTRAP = 500
 #: the smooth field a frame's texture is taken over: a Gaussian of this sigma at 64 px,
 #: scaled with the frame (a falloff's curvature then drops out at every size); 3 sigma
 #: are left out at each edge, where the field's padding is not the frame's
@@ -153,7 +153,9 @@ def read_frame(
     b, a = float(before.mean()), float(after.mean())
     if change <= ABOVE_ROUNDING * rounding:
         return FrameReading(NO_TEXTURE, b, a, change=change, rounding=rounding)
-    lo, hi = _removed_ci(before.cpu(), after.cpu(), seed)
+    # mean texture gap removed over resampled windows: decided by its sign even where the
+    # sim's frame is the measured one (``before`` 0)
+    lo, hi = interval95((before - after)[resampled(len(before), seed)].mean(1))
     status = CONFIRMS if lo > 0 else CONTRADICTS if hi < 0 else UNDECIDED
     credit = (b - a) / b if b > 0 else -math.inf
     return FrameReading(status, b, a, credit, lo, hi, change, rounding)
@@ -175,17 +177,6 @@ def changes_texture(scene: PairScene, name: str, params: Mapping[str, float], se
         dither = (torch.rand(probe.shape, generator=gen) - 0.5).to(device)
         rounding = float(window_gap(probe + dither, probe, level).mean())
     return change > ABOVE_ROUNDING * rounding
-
-
-def _removed_ci(before: torch.Tensor, after: torch.Tensor, seed: int) -> tuple[float, float]:
-    """Bootstrap 95% CI of the mean texture gap removed, ``mean(before - after)`` (grey
-    level^2), over resampled windows: decided by its sign even where the sim's frame is the
-    measured one (``before`` 0)."""
-    gen = torch.Generator().manual_seed(seed)
-    idx = torch.randint(0, len(before), (BOOTSTRAP, len(before)), generator=gen)
-    removed = (before - after)[idx].mean(1)
-    lo, hi = torch.quantile(removed, torch.tensor([0.025, 0.975])).tolist()
-    return float(lo), float(hi)
 
 
 def lens_of(a: str, b: str) -> str | None:

@@ -22,7 +22,8 @@ from typing import Any
 
 import torch
 
-BOOTSTRAP = 500
+from tactile_bench.diagnose.bootstrap import BOOTSTRAP, interval95, resampled
+
 #: a coalition's held-out gap per pair
 CoalitionGaps = Mapping[frozenset[str], torch.Tensor]
 
@@ -69,14 +70,14 @@ def shapley_shares(
     n_pairs = len(gaps[frozenset()])
     point = shapley_values(players, {c: g.double().mean() for c, g in gaps.items()})
     base = float(gaps[frozenset()].double().mean())
-    idx = torch.randint(0, n_pairs, (n, n_pairs), generator=torch.Generator().manual_seed(seed))
-    resampled = {c: g.double()[idx].mean(1) for c, g in gaps.items()}
-    draws = shapley_values(players, resampled)
+    idx = resampled(n_pairs, seed, n)
+    gaps_drawn = {c: g.double()[idx].mean(1) for c, g in gaps.items()}
+    draws = shapley_values(players, gaps_drawn)
     out = []
     for player in players:
         share = float(point[player]) / base if base > 0 else 0.0
-        ratio = draws[player] / resampled[frozenset()].clamp(min=1e-12)
-        lo, hi = torch.quantile(ratio, ratio.new_tensor([0.025, 0.975])).tolist()
+        ratio = draws[player] / gaps_drawn[frozenset()].clamp(min=1e-12)
+        lo, hi = interval95(ratio)
         # a percentile interval can miss its own estimate on degenerate data: it holds it
         out.append(ShapleyShare(player, share, min(lo, share), max(hi, share)))
     return out
