@@ -147,9 +147,7 @@ def read_frame(
         before = window_gap(before_frame, measured, level)
         after = window_gap(after_frame, measured, level)
         change = float(window_gap(after_frame, before_frame, level).mean())
-        gen = torch.Generator().manual_seed(seed)
-        dither = (torch.rand(before_frame.shape, generator=gen) - 0.5).to(before_frame.device)
-        rounding = float(window_gap(before_frame + dither, before_frame, level).mean())
+        rounding = rounding_change(before_frame, level, torch.Generator().manual_seed(seed))
     b, a = float(before.mean()), float(after.mean())
     if change <= ABOVE_ROUNDING * rounding:
         return FrameReading(NO_TEXTURE, b, a, change=change, rounding=rounding)
@@ -174,9 +172,15 @@ def changes_texture(scene: PairScene, name: str, params: Mapping[str, float], se
     with torch.no_grad():
         through = cand.through_sensor(probe, params, scene.context(stochastic=False))
         change = float(window_gap(through, probe, level).mean())
-        dither = (torch.rand(probe.shape, generator=gen) - 0.5).to(device)
-        rounding = float(window_gap(probe + dither, probe, level).mean())
+        rounding = rounding_change(probe, level, gen)
     return change > ABOVE_ROUNDING * rounding
+
+
+def rounding_change(frame: torch.Tensor, level: torch.Tensor, gen: torch.Generator) -> float:
+    """How much 8-bit rounding changes ``frame``'s texture: the mean window gap of the frame
+    against itself plus uniform noise one grey level wide (the yardstick of ``ABOVE_ROUNDING``)."""
+    dither = (torch.rand(frame.shape, generator=gen) - 0.5).to(frame.device)
+    return float(window_gap(frame + dither, frame, level).mean())
 
 
 def lens_of(a: str, b: str) -> str | None:
