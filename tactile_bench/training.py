@@ -65,6 +65,42 @@ NEUTRAL_TRAINER_KEYS = frozenset(
 )
 
 
+def device_count(devices: Any) -> int | None:
+    """How many processes per node ``devices`` asks for; None when Lightning decides."""
+    if isinstance(devices, bool):
+        return None
+    if isinstance(devices, int):
+        return devices if devices > 0 else None
+    if isinstance(devices, list | tuple):
+        return len(devices)
+    if isinstance(devices, str):
+        text = devices.strip()
+        if text.isdigit():
+            return int(text)
+        if "," in text:
+            return len([d for d in text.split(",") if d.strip()])
+    return None
+
+
+def processes(trainer: Mapping[str, Any]) -> int:
+    """How many processes a fit with these settings trains on (1 unless a multi-process
+    strategy and a device count say more); their batches add up to one optimizer step."""
+    strategy = trainer.get("strategy")
+    if not isinstance(strategy, str) or not strategy.startswith(("ddp", "fsdp", "deepspeed")):
+        return 1
+    per_node = device_count(trainer.get("devices", "auto")) or 1
+    return per_node * int(trainer.get("num_nodes", 1) or 1)
+
+
+def log_interval(items: int, batch_size: int, trainer: Mapping[str, Any], cap: int) -> int:
+    """``log_every_n_steps`` for a fit of ``items`` in batches of ``batch_size``: ``cap``, or
+    every epoch when an epoch has fewer batches. Under DDP each process draws its share of
+    the items, so its epoch is that many times shorter (Lightning warns of an interval longer
+    than the epoch it sees)."""
+    per_process = max(1, items // processes(trainer))
+    return max(1, min(cap, per_process // max(1, batch_size)))  # floor: drop_last too
+
+
 def result_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
     """The trainer settings that can change a fit's result (for cache keys, fingerprints)."""
     return {k: v for k, v in settings.items() if k not in NEUTRAL_TRAINER_KEYS}

@@ -174,6 +174,20 @@ def test_a_recipe_runs_under_lightning_ddp_and_rank_zero_writes_it(
     assert not list(run_dir.rglob("*.tmp"))
 
 
+#: Lightning notices a launch must not print (issue 48): an interval longer than the epoch a
+#: process sees, and an epoch-level value logged unsynchronised
+NOTICES = ("smaller than the logging interval", "sync_dist=True")
+
+
+def test_a_launch_prints_no_lightning_notice_on_any_rank(
+    lightning_ddp: tuple[Path, subprocess.CompletedProcess[str]],
+) -> None:
+    """Both ranks write to this stderr (Lightning's launcher re-runs the command)."""
+    _, proc = lightning_ddp
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert not [line for line in proc.stderr.splitlines() if any(n in line for n in NOTICES)]
+
+
 def test_parallel_seeds_are_one_at_a_time_under_a_launch(
     lightning_ddp: tuple[Path, subprocess.CompletedProcess[str]],
 ) -> None:
@@ -247,6 +261,7 @@ def test_torchrun_a_killed_rank_ends_the_launch_and_the_next_resumes_to_the_same
     again = _run(cmd, launches)
     assert again.returncode == 0, again.stderr[-3000:]
     assert "resuming from" in again.stderr
+    assert not [line for line in again.stderr.splitlines() if any(n in line for n in NOTICES)]
     reference, proc = lightning_ddp
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert _stages(run_dir)["fit"]["directory"] == _stages(reference)["fit"]["directory"]
@@ -327,3 +342,23 @@ def test_srun_two_tasks_run_the_recipe_as_slurm_would_start_them(
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert _stages(run_dir)["fit"]["directory"] == _stages(reference)["fit"]["directory"]
     assert _rows(run_dir) == _rows(reference)
+
+
+#: launches of the repeat test: the abort at exit came in about 1 launch in 11 (issue 48)
+REPEATS = 20
+
+
+@pytest.mark.slow
+def test_every_torchrun_launch_of_a_finished_recipe_exits_zero(launches: Path) -> None:
+    """A finished launch once aborted at exit on rank 1 (``terminate called without an
+    active exception``: gloo groups left to the interpreter's finalisation), and torchrun
+    reported it failed. Each launch here retrains the classifier on both ranks."""
+    cmd = _torchrun("--standalone", "--nproc_per_node", "2")
+    cmd += _fit_args(launches / "small.yaml", launches / "repeat")
+    cmd += ["--set", f"fit.translator_config.max_steps={4}", "--force", "classify_real"]
+    failed = []
+    for attempt in range(REPEATS):
+        proc = _run(cmd, launches)
+        if proc.returncode != 0 or "terminate called" in proc.stderr:
+            failed.append((attempt, proc.returncode, proc.stderr[-800:]))
+    assert not failed, f"{len(failed)} of {REPEATS} launches failed; first: {failed[0]}"

@@ -15,12 +15,14 @@ import torch
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.pipeline import run_lock
 from tactile_bench.pipeline.launch import (
+    Launch,
     completed_trainer,
+    current,
+    finish,
     launched_externally,
-    processes,
 )
 from tactile_bench.pipeline.run_lock import RunDirLock, check_claim, owner_path, read_owner
-from tactile_bench.training import ResumableSampler
+from tactile_bench.training import ResumableSampler, processes
 
 
 def _claim(run_dir: Path, host: str, age_s: float, pid: int = 4242) -> Path:
@@ -130,3 +132,21 @@ def test_the_sampler_shares_one_permutation_between_processes_and_resumes_in_eac
     state = first.generator.get_state()
     resumed.resume(state, batches_done=1)
     assert list(resumed) == shares[1][2:]
+
+
+def test_a_finished_launch_destroys_its_process_groups(tmp_path: Path) -> None:
+    """Lightning destroys its group at exit for NCCL only; a gloo group left to the
+    interpreter's finalisation aborted a finished rank (issue 48). ``finish`` destroys them
+    while the process is whole, after every rank has arrived."""
+    import torch.distributed as dist
+
+    store = dist.FileStore(str(tmp_path / "store"), 1)
+    dist.init_process_group("gloo", store=store, rank=0, world_size=1)
+    try:
+        launch = Launch(1, 0, "torchrun", "test", dist.new_group(backend="gloo"))
+        finish(launch)
+        assert not dist.is_initialized()
+        assert current() is None
+    finally:
+        if dist.is_initialized():
+            dist.destroy_process_group()

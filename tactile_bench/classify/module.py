@@ -96,7 +96,8 @@ class BrailleClassifier(L.LightningModule):
         logits = self(x)
         loss = self.loss_fn(logits, y)
         self.train_acc(logits.detach(), y)
-        self.log("train_loss", loss, prog_bar=True, on_step=True, on_epoch=True)
+        # the epoch's mean over every process under DDP (one scalar all-reduce a step)
+        self.log("train_loss", loss, prog_bar=True, on_step=True, on_epoch=True, sync_dist=True)
         self.log("train_acc", self.train_acc, prog_bar=True, on_step=False, on_epoch=True)
         return loss
 
@@ -104,7 +105,7 @@ class BrailleClassifier(L.LightningModule):
         x, y = batch
         logits = self(x)
         self.val_acc(logits, y)
-        self.log("val_loss", self.loss_fn(logits, y), prog_bar=False, on_epoch=True)
+        self.log("val_loss", self.loss_fn(logits, y), prog_bar=False, on_epoch=True, sync_dist=True)
         self.log("val_acc", self.val_acc, prog_bar=True, on_epoch=True)
 
     def test_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int) -> None:

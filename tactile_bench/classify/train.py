@@ -34,6 +34,7 @@ from tactile_bench.training import (
     DeviceBatches,
     ResumableSampler,
     fingerprint,
+    log_interval,
     result_settings,
     resumable_fit,
 )
@@ -250,7 +251,6 @@ def _trainer_settings(
     """The Trainer's arguments: one device (Lightning's ``auto``: the GPU when there is one)
     and the config's epochs, the caller's overrides on top."""
     has_val = datamodule.val_set is not None
-    steps_per_epoch = max(1, -(-len(datamodule.train_set) // config.batch_size))
     kwargs: dict[str, Any] = dict(
         max_epochs=config.epochs,
         accelerator="auto",
@@ -259,11 +259,13 @@ def _trainer_settings(
         default_root_dir=str(out_dir),
         enable_model_summary=False,
         enable_progress_bar=True,
-        log_every_n_steps=min(50, steps_per_epoch),
         num_sanity_val_steps=0,
         limit_val_batches=1.0 if has_val else 0,
     )
     kwargs.update(trainer_kwargs or {})  # enable_checkpointing=False: no checkpoints/last.ckpt
+    kwargs.setdefault(
+        "log_every_n_steps", log_interval(len(datamodule.train_set), config.batch_size, kwargs, 50)
+    )
     kwargs["precision"] = classifier_precision(config, kwargs)
     return kwargs
 

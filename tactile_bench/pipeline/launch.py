@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.training import device_count
 
 log = logging.getLogger("tactile_bench")
 
@@ -104,23 +105,6 @@ def launched_externally() -> tuple[str, int, int] | None:
     return None
 
 
-def _device_count(devices: Any) -> int | None:
-    """How many processes per node ``devices`` asks for; None when Lightning decides."""
-    if isinstance(devices, bool):
-        return None
-    if isinstance(devices, int):
-        return devices if devices > 0 else None
-    if isinstance(devices, list | tuple):
-        return len(devices)
-    if isinstance(devices, str):
-        text = devices.strip()
-        if text.isdigit():
-            return int(text)
-        if "," in text:
-            return len([d for d in text.split(",") if d.strip()])
-    return None
-
-
 def _asks_for_ddp(trainer: Mapping[str, Any]) -> bool:
     """Lightning's subprocess launcher (``strategy: ddp`` and its variants, not the spawn
     or notebook ones) on more than one process."""
@@ -129,9 +113,9 @@ def _asks_for_ddp(trainer: Mapping[str, Any]) -> bool:
         return False
     if any(word in strategy for word in ("spawn", "fork", "notebook")):
         return False
-    processes = _device_count(trainer.get("devices", "auto")) or 1
+    per_node = device_count(trainer.get("devices", "auto")) or 1
     nodes = int(trainer.get("num_nodes", 1) or 1)
-    return processes * nodes > 1
+    return per_node * nodes > 1
 
 
 def completed_trainer(trainer: Mapping[str, Any], world: int, per_node: int) -> dict[str, Any]:
@@ -145,7 +129,7 @@ def completed_trainer(trainer: Mapping[str, Any], world: int, per_node: int) -> 
         if given is None or given == "auto":
             settings[key] = value
             continue
-        count = _device_count(given) if key == "devices" else given
+        count = device_count(given) if key == "devices" else given
         if key == "strategy":
             if not (isinstance(given, str) and given.startswith("ddp")) or "spawn" in given:
                 raise TactileBenchError(
@@ -206,6 +190,25 @@ def start(trainer: Mapping[str, Any]) -> tuple[Launch | None, dict[str, Any]]:
     return _current, completed_trainer(trainer, world, _per_node())
 
 
+def finish(launch: Launch) -> None:
+    """End this process's part of a launch that ran to its end: wait for every rank, then
+    destroy the process groups (Lightning's and the leader's) while the interpreter is whole.
+
+    Lightning destroys them at exit for NCCL only; a gloo group left to the interpreter's
+    finalisation can still hold worker threads, and the process then aborts at exit
+    (``terminate called without an active exception``, SIGABRT), so torchrun reports a
+    finished launch failed. Only after success: a rank whose peers are gone or inside a
+    collective would wait here instead of exiting with its error.
+    """
+    global _current
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.barrier(group=launch.group)
+        dist.destroy_process_group()
+    _current = None
+
+
 def _per_node() -> int:
     assert _current is not None
     outside = launched_externally()
@@ -235,16 +238,6 @@ def scratch_dir(launch: Launch, stage: str) -> Iterator[Path]:
 def single_process_trainer(trainer: Mapping[str, Any]) -> dict[str, Any]:
     """Settings for a fit on the leader alone (a stage that does not train on every rank)."""
     return {**trainer, "strategy": "auto", "devices": 1, "num_nodes": 1}
-
-
-def processes(trainer: Mapping[str, Any]) -> int:
-    """How many processes a fit with these settings trains on (1 unless a multi-process
-    strategy and a device count say more); their batches add up to one optimizer step."""
-    strategy = trainer.get("strategy")
-    if not isinstance(strategy, str) or not strategy.startswith(("ddp", "fsdp", "deepspeed")):
-        return 1
-    per_node = _device_count(trainer.get("devices", "auto")) or 1
-    return per_node * int(trainer.get("num_nodes", 1) or 1)
 
 
 def gather(launch: Launch, value: Any) -> list[Any]:

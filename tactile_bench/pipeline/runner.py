@@ -26,7 +26,8 @@ from tactile_bench.hardware import (
     trainer_device,
 )
 from tactile_bench.io import atomic_write_json, file_sha256, json_sha256
-from tactile_bench.pipeline.launch import LAUNCH_KEYS, Launch, gather, processes, share
+from tactile_bench.pipeline.launch import LAUNCH_KEYS, Launch, gather, share
+from tactile_bench.pipeline.launch import finish as finish_launch
 from tactile_bench.pipeline.launch import start as start_launch
 from tactile_bench.pipeline.provenance import InputHasher, run_record
 from tactile_bench.pipeline.ranks import (
@@ -40,7 +41,7 @@ from tactile_bench.pipeline.recipe import Recipe, Stage
 from tactile_bench.pipeline.run_lock import RunDirLock, check_claim
 from tactile_bench.pipeline.side_by_side import Ran, execute, run_side_by_side
 from tactile_bench.pipeline.stages.base import StageContext, StageResult
-from tactile_bench.training import result_settings
+from tactile_bench.training import processes, result_settings
 
 log = logging.getLogger("tactile_bench")
 DONE = "_done.json"
@@ -214,6 +215,7 @@ def _run_launched(
             raise TactileBenchError(f"{launch.describe()}: run dir {recipe.run_dir}: {problem}")
         del seen  # a rank that does not see the run dir: rank 0 stops everyone
         follow(launch)
+        finish_launch(launch)
         return []
     try:
         check_output_dir(recipe.run_dir, "run dir")
@@ -225,12 +227,14 @@ def _run_launched(
                     f"run dir {recipe.run_dir}: not on storage every rank shares ({unseen[0]}); "
                     "put it where all nodes see the same files"
                 )
-            return _run_locked(recipe, force, progress, launch)
+            results = _run_locked(recipe, force, progress, launch)
     except LostProcess:
         raise  # no one to tell, and a follower may be inside a collective
     except BaseException as exc:
         stop_followers(launch, str(exc) or type(exc).__name__)
         raise
+    finish_launch(launch)
+    return results
 
 
 def _run_locked(

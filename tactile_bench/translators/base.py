@@ -33,6 +33,7 @@ from tactile_bench.training import (
     FitReport,
     ResumableSampler,
     fingerprint,
+    log_interval,
     result_settings,
     resumable_fit,
 )
@@ -148,10 +149,12 @@ class Translator(L.LightningModule):
             "logger": loggers if loggers is not None else False,
             "enable_model_summary": False,
             "default_root_dir": str(out_dir),
-            # an epoch of a small fine-tuning pool has fewer batches than 10: log every epoch
-            "log_every_n_steps": max(1, min(10, len(loader))),
         }
         settings.update(trainer or {})
+        # an epoch of a small fine-tuning pool has fewer batches than 10: log every epoch
+        settings.setdefault(
+            "log_every_n_steps", log_interval(len(depth), self.config.batch_size, settings, 10)
+        )
         settings["precision"] = self.training_precision(settings)
         config = self.config.model_dump(mode="json")
         start = self.state_dict()  # fine-tuning: the weights it starts from matter too
