@@ -1,14 +1,18 @@
 """Process pools of spawned workers that end with the work they serve.
 
 Every place that starts worker processes (the corpus builder, a classify stage's seeds, the
-side-by-side runner) takes its pool from :func:`spawned_pool`, a ``with`` block: when the
-block ends, normally, by an error or by Ctrl-C, the pending work is cancelled and the
-workers are stopped and joined. No pool outlives the stage that made it.
+side-by-side runner) takes its pool from here. :func:`spawned_pool` is a ``with`` block:
+when the block ends, normally, by an error or by Ctrl-C, the pending work is cancelled and
+the workers are stopped and joined. :func:`kept_pool` is one pool a process reuses from
+stage to stage (each worker's start-up imports torch and Lightning: seconds a stage), and
+ends with the run: :func:`close_kept_pools` (the runner's ``keeping_pools`` block), or in a
+process that is itself a pool worker, before that process's exit joins its children.
 
-That is what lets a process that is itself a worker exit: at exit, multiprocessing joins a
-worker's live children before anything else (``atexit`` handlers do not run in a
-multiprocessing child at all), and an idle pool worker waits for work for ever, so a pool
-left open by a side-by-side stage hung the run after its last stage.
+That order is what lets a worker process exit: at exit, multiprocessing joins a worker's
+live children before anything else (``atexit`` handlers do not run in a multiprocessing
+child at all), and an idle pool worker waits for work for ever, so a pool still open there
+would hang the run after its last stage. A kept pool is shut down by a multiprocessing
+finaliser that runs before that join.
 
 Workers are spawned, not forked: a forked child cannot use the parent's OpenMP or Embree
 thread pools. Tensors reach them through shared-memory files (torch's ``file_system``
@@ -17,6 +21,7 @@ sharing strategy: file descriptors run out in containers).
 
 from __future__ import annotations
 
+import multiprocessing.util
 import os
 import signal
 from collections.abc import Callable, Iterable, Iterator
@@ -52,6 +57,55 @@ def spawned_pool(
         yield pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+#: this process's kept pools, by worker count
+_KEPT: dict[int, ProcessPoolExecutor] = {}
+
+
+def kept_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes that this process's later stages reuse.
+
+    Shut down by :func:`close_kept_pools`, and in any case before this process's exit joins
+    its children (a finaliser above the priority of the pool's own queues, which must still
+    carry the stop messages). A pool that broke is dropped with :func:`forget_kept_pool`.
+    """
+    if workers < 1:
+        raise ValueError(f"a pool needs at least one worker, got {workers}")
+    pool = _KEPT.get(workers)
+    if pool is None:
+        torch.multiprocessing.set_sharing_strategy("file_system")
+        pool = ProcessPoolExecutor(workers, mp_context=torch.multiprocessing.get_context("spawn"))
+        multiprocessing.util.Finalize(pool, _shut_down, args=(pool,), exitpriority=100)
+        _KEPT[workers] = pool
+    return pool
+
+
+def _shut_down(pool: ProcessPoolExecutor) -> None:
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+def forget_kept_pool(workers: int) -> None:
+    """Drop (and shut down without waiting) the kept pool of ``workers``: it broke."""
+    pool = _KEPT.pop(workers, None)
+    if pool is not None:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def close_kept_pools() -> None:
+    """Stop and join every kept pool of this process."""
+    while _KEPT:
+        _, pool = _KEPT.popitem()
+        _shut_down(pool)
+
+
+@contextmanager
+def keeping_pools() -> Iterator[None]:
+    """Kept pools made inside the block are closed when it ends (a run's stages)."""
+    try:
+        yield
+    finally:
+        close_kept_pools()
 
 
 def cancel_pending(futures: Iterable[Future[Any]]) -> None:

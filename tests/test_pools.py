@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tactile_bench.pools import spawned_pool
+from tactile_bench.pools import close_kept_pools, kept_pool, spawned_pool
 
 RECIPE = """\
 name: pool_exit
@@ -52,3 +52,43 @@ def test_pool_stops_its_workers_when_the_block_ends() -> None:
 def test_pool_refuses_no_workers() -> None:
     with pytest.raises(ValueError, match="at least one worker"), spawned_pool(0):
         pass
+
+
+def test_a_kept_pool_serves_later_stages_until_closed() -> None:
+    first = kept_pool(1)
+    pid = first.submit(os.getpid).result()
+    assert kept_pool(1) is first and first.submit(os.getpid).result() == pid  # no new spawn
+    workers = list(first._processes.values())
+    close_kept_pools()
+    assert workers and not any(p.is_alive() for p in workers)
+    assert kept_pool(1) is not first  # a later run spawns anew
+    close_kept_pools()
+
+
+WORKER_KEEPS_A_POOL = """\
+import os
+from tactile_bench.pools import kept_pool, spawned_pool
+
+def keep_one() -> int:
+    return kept_pool(1).submit(os.getpid).result()
+
+if __name__ == "__main__":
+    with spawned_pool(1) as outer:
+        print("inner worker", outer.submit(keep_one).result())
+    print("outer pool joined")
+"""
+
+
+def test_a_worker_that_keeps_a_pool_still_exits(tmp_path: Path) -> None:
+    """A side-by-side worker whose classify stage kept a seed pool: at its exit, the kept
+    pool stops before multiprocessing joins the worker's children (else: a hang)."""
+    script = tmp_path / "keeps.py"
+    script.write_text(WORKER_KEEPS_A_POOL)
+    try:
+        done = subprocess.run(
+            [sys.executable, str(script)], capture_output=True, text=True, timeout=120
+        )
+    except subprocess.TimeoutExpired as hung:
+        pytest.fail(f"the worker did not exit with its kept pool: {hung.stderr!r}"[-2000:])
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "outer pool joined" in done.stdout

@@ -25,6 +25,7 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.pipeline.recipe import RaySettings, Stage
 from tactile_bench.pipeline.side_by_side import Ran, execute
 from tactile_bench.pipeline.stages.base import StageContext
+from tactile_bench.pools import keeping_pools
 
 log = logging.getLogger("tactile_bench")
 
@@ -65,7 +66,8 @@ def execute_stage(stage: Stage, ctx: StageContext, threads: int, level: int) -> 
     ctx = dataclasses.replace(
         ctx, progress=False, trainer={**ctx.trainer, "enable_progress_bar": False}
     )
-    return execute(stage, ctx)
+    with keeping_pools():  # a Ray worker outlives the task: its seed pool does not
+        return execute(stage, ctx)
 
 
 def run_on_ray(

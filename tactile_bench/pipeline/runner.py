@@ -41,6 +41,7 @@ from tactile_bench.pipeline.recipe import Recipe, Stage
 from tactile_bench.pipeline.run_lock import RunDirLock, check_claim
 from tactile_bench.pipeline.side_by_side import Ran, execute, run_side_by_side
 from tactile_bench.pipeline.stages.base import StageContext, StageResult
+from tactile_bench.pools import keeping_pools
 from tactile_bench.training import processes, result_settings
 
 log = logging.getLogger("tactile_bench")
@@ -181,7 +182,7 @@ def run_recipe(
         return _run_launched(recipe, launch, force, progress)
     check_output_dir(recipe.run_dir, "run dir")
     # a second run on this run dir would do the same work and overwrite the first's files
-    with OutputLock(recipe.run_dir, "run dir"):
+    with OutputLock(recipe.run_dir, "run dir"), keeping_pools():
         return _run_locked(recipe, force, progress)
 
 

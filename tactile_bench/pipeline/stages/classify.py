@@ -42,7 +42,7 @@ from tactile_bench.pipeline.stages.base import (
     StageKind,
     StageResult,
 )
-from tactile_bench.pools import cancel_pending, spawned_pool
+from tactile_bench.pools import cancel_pending, forget_kept_pool, kept_pool
 from tactile_bench.report.figures import confusion_png, per_class_bar_png
 from tactile_bench.translators import image_to_foreground
 
@@ -226,7 +226,8 @@ def _train_seeds(
 ) -> list[tuple[Any, torch.Tensor]]:
     """Every seed's trained model and held-out indices, ``parallel_seeds`` at a time.
 
-    The workers (``tactile_bench.pools``: spawned, stopped when the stage ends) train on
+    The workers (``tactile_bench.pools.kept_pool``: spawned once, reused by the run's later
+    classify stages, stopped when the run or this worker process ends) train on
     ``threads`` threads each so that together they use the cores this process had. A seed's
     training is the same function with the same arguments in either case, so its weights are
     the same as training it here on that many threads.
@@ -237,23 +238,23 @@ def _train_seeds(
         return [_train_one(ctx, seed, foreground, labels, n_classes, pool) for seed in config.seeds]
     threads = max(1, torch.get_num_threads() // workers)
     start = time.perf_counter()
+    executor = kept_pool(workers)
+    jobs = [
+        executor.submit(
+            _train_seed_in_worker, ctx, seed, foreground, labels, n_classes, pool, threads
+        )
+        for seed in config.seeds
+    ]
     try:
-        with spawned_pool(workers) as executor:
-            jobs = [
-                executor.submit(
-                    _train_seed_in_worker, ctx, seed, foreground, labels, n_classes, pool, threads
-                )
-                for seed in config.seeds
-            ]
-            try:
-                done = [job.result() for job in jobs]
-            finally:  # an error or an interrupt: do not leave the pool busy with the others
-                cancel_pending(jobs)
+        done = [job.result() for job in jobs]
     except BrokenProcessPool:
+        forget_kept_pool(workers)
         raise TactileBenchError(
             f"stage {ctx.name}: a seed's worker process died (out of memory?); "
             "set parallel_seeds: 1 to train the seeds in turn"
         ) from None
+    finally:  # an error or an interrupt: do not leave the pool busy with the other seeds
+        cancel_pending(jobs)
     log.info(
         "stage %s: %d seeds trained, %d at a time on %d thread(s) each, in %.1f s",
         ctx.name,
