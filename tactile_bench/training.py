@@ -30,7 +30,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import lightning as L
 import numpy as np
@@ -161,6 +161,20 @@ class ResumableSampler(Sampler[int]):
         yield from islice(order, skip, None)
 
 
+class PositionedSampler(Protocol):
+    """What a checkpoint saves and restores of a fit's data position: a
+    :class:`ResumableSampler`, or a group of them (``classify.stacked.SamplerGroup``)."""
+
+    shard: tuple[int, int]
+
+    @property
+    def epoch_state(self) -> torch.Tensor | None: ...
+
+    def next_epoch_state(self) -> torch.Tensor: ...
+
+    def resume(self, epoch_state: torch.Tensor, batches_done: int) -> None: ...
+
+
 class DeviceBatches:
     """The batches ``DataLoader(TensorDataset(*tensors), batch_size, sampler=sampler,
     generator=generator)`` gives, in the same order, drawn by indexing ``tensors`` where
@@ -252,7 +266,7 @@ class GuardedCheckpoint(Callback):
         self,
         path: Path | None,
         every: int,
-        sampler: ResumableSampler | None,
+        sampler: PositionedSampler | None,
         fingerprint: str,
         what: str,
     ) -> None:
@@ -557,7 +571,7 @@ def resumable_fit(
     module: L.LightningModule,
     settings: dict[str, Any],
     checkpoint_dir: Path,
-    sampler: ResumableSampler | None,
+    sampler: PositionedSampler | None,
     fit_fingerprint: str,
     what: str,
     **fit_kwargs: Any,

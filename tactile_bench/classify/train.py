@@ -28,6 +28,13 @@ from torchmetrics.functional.classification import (
 
 from tactile_bench.classify.model import NUM_CLASSES
 from tactile_bench.classify.module import BrailleClassifier
+from tactile_bench.classify.stacked import (
+    SeedBatches,
+    SeedDataModule,
+    StackedClassifier,
+    stack_networks,
+    unstack_network,
+)
 from tactile_bench.data.datamodule import ForegroundDataModule
 from tactile_bench.hardware import PRECISIONS, Precision, compute_device, trainer_precision
 from tactile_bench.training import (
@@ -35,6 +42,7 @@ from tactile_bench.training import (
     ResumableSampler,
     fingerprint,
     log_interval,
+    processes,
     result_settings,
     resumable_fit,
 )
@@ -190,7 +198,9 @@ def train_classifier(
     )
     model = _new_model(config, int(train_fg.shape[1]), num_classes, init)
     logger_list = list(loggers) if loggers is not None else [CSVLogger(str(out_dir), name="logs")]
-    kwargs = _trainer_settings(config, datamodule, out_dir, logger_list, trainer_kwargs)
+    has_val = datamodule.val_set is not None
+    n_train = len(datamodule.train_set)
+    kwargs = _trainer_settings(config, n_train, has_val, out_dir, logger_list, trainer_kwargs)
     for logger in logger_list:
         logger.log_hyperparams({"classifier": config.to_dict(), "n_train": len(train_labels)})
     key = fingerprint(
@@ -221,6 +231,124 @@ def train_classifier(
     return model.cpu().eval()
 
 
+def batchable(
+    configs: Sequence[ClassifierConfig], trainer_kwargs: Mapping[str, Any] | None = None
+) -> str | None:
+    """Why :func:`train_classifiers` cannot train these seeds as one stacked model, or None
+    when it can (otherwise train them one at a time with :func:`train_classifier`)."""
+    if not configs:
+        return "no configs"
+    first = {**configs[0].to_dict(), "seed": None}
+    if any({**c.to_dict(), "seed": None} != first for c in configs[1:]):
+        return "the configs differ in more than their seed"
+    settings = dict(trainer_kwargs or {})
+    if configs[0].augment:
+        return "augment=True draws the shifts from the global RNG, which seeds in a batch share"
+    if configs[0].val_fraction > 0:
+        return "val_fraction > 0: each seed would hold out its own validation split"
+    if processes(settings) > 1:
+        return "the trainer runs several processes"
+    if settings.get("gradient_clip_val") and settings.get("gradient_clip_algorithm") != "value":
+        return "gradient norm clipping would clip the seeds by their joint norm"
+    if str(settings.get("precision")) in ("16", "16-mixed"):
+        return "fp16 loss scaling would skip every seed's step when one seed's overflows"
+    return None
+
+
+def train_classifiers(
+    train_fg: torch.Tensor,
+    train_labels: torch.Tensor,
+    configs: Sequence[ClassifierConfig],
+    out_dir: str | Path = "classifiers",
+    loggers: Sequence[Logger] | None = None,
+    trainer_kwargs: dict[str, Any] | None = None,
+    num_classes: int = NUM_CLASSES,
+    inits: Sequence[BrailleClassifier] | None = None,
+    close_loggers: bool = True,
+    subsets: Sequence[torch.Tensor] | None = None,
+) -> list[BrailleClassifier]:
+    """:func:`train_classifier` for several seeds at once, as one stacked model
+    (``classify.stacked``): one pass over the data trains them all.
+
+    ``configs`` differ only in ``seed``; returns each seed's model, in eval mode on the CPU,
+    equal up to float rounding to ``train_classifier(train_fg, train_labels, configs[k],
+    init=inits[k])``'s (the same initial weights, batches and Adam steps); with
+    ``subsets``, seed k trains on ``train_fg[subsets[k]]`` as that call would (each seed's
+    own split, no copy of the images). Checkpoints, resume and loggers as there. Raises ValueError when :func:`batchable` gives a reason,
+    or when a layer of the network cannot be stacked: train the seeds one at a time then.
+    """
+    reason = batchable(configs, trainer_kwargs)
+    if reason is not None:
+        raise ValueError(f"train_classifiers: cannot train the seeds as one model: {reason}")
+    starts: list[BrailleClassifier | None] = list(inits) if inits is not None else []
+    if inits is not None and len(starts) != len(configs):
+        raise ValueError(f"train_classifiers: {len(starts)} inits for {len(configs)} configs")
+    starts = starts or [None] * len(configs)
+    config, seeds = configs[0], [c.seed for c in configs]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    x, y = ForegroundDataModule(train=(train_fg, train_labels)).train_set.tensors
+    models = []
+    for c, init in zip(configs, starts, strict=True):
+        L.seed_everything(c.seed, workers=True, verbose=False)  # each seed's init, as alone
+        models.append(_new_model(c, int(x.shape[1]), num_classes, init))
+    data = SeedDataModule(SeedBatches((x, y), seeds, config.batch_size, subsets))
+    rows = data.batches.subsets
+    net = stack_networks([m.net for m in models])
+    module = StackedClassifier(net, len(models), num_classes, config.lr, config.weight_decay)
+    logger_list = list(loggers) if loggers is not None else [CSVLogger(str(out_dir), name="logs")]
+    n_train = rows.shape[1]
+    kwargs = _trainer_settings(config, n_train, False, out_dir, logger_list, trainer_kwargs)
+    for logger in logger_list:
+        logger.log_hyperparams(
+            {"classifier": {**config.to_dict(), "seed": seeds}, "n_train": n_train}
+        )
+    key = fingerprint(
+        "classifiers",
+        [c.to_dict() for c in configs],
+        num_classes,
+        result_settings(kwargs),
+        train_fg,
+        train_labels,
+        rows,
+        [init.state_dict() if init is not None else None for init in starts],
+    )
+    try:
+        resumable_fit(
+            module,
+            kwargs,
+            out_dir / "checkpoints",
+            data.batches.sampler,
+            key,
+            f"classifier training of seeds {seeds} in {out_dir}",
+            datamodule=data,
+        )
+    finally:
+        if close_loggers:
+            _close_wandb(logger_list)
+    return _unstacked(module, models, configs, x, rows.cpu(), kwargs.get("accelerator"))
+
+
+def _unstacked(
+    module: StackedClassifier,
+    models: list[BrailleClassifier],
+    configs: Sequence[ClassifierConfig],
+    x: torch.Tensor,
+    rows: torch.Tensor,
+    accelerator: Any,
+) -> list[BrailleClassifier]:
+    """Each seed's trained weights back in its own model, BatchNorm re-estimated on its own
+    training rows as :func:`train_classifier` does; eval mode, on the CPU."""
+    nets = unstack_network(module.net.cpu(), models[0].net, len(models))
+    for model, trained, config, own in zip(models, nets, configs, rows, strict=True):
+        model.net.load_state_dict(trained.state_dict())
+        if config.precise_bn_images > 0:
+            model.to(compute_device(accelerator))
+            _precise_batchnorm(model, x[own], config)
+        model.cpu().eval()
+    return models
+
+
 def _new_model(
     config: ClassifierConfig, in_channels: int, num_classes: int, init: BrailleClassifier | None
 ) -> BrailleClassifier:
@@ -243,14 +371,15 @@ def _new_model(
 
 def _trainer_settings(
     config: ClassifierConfig,
-    datamodule: _ResumableDataModule,
+    n_train: int,
+    has_val: bool,
     out_dir: Path,
     logger_list: list[Logger],
     trainer_kwargs: dict[str, Any] | None,
 ) -> dict[str, Any]:
-    """The Trainer's arguments: one device (Lightning's ``auto``: the GPU when there is one)
-    and the config's epochs, the caller's overrides on top."""
-    has_val = datamodule.val_set is not None
+    """The Trainer's arguments for ``n_train`` training images: one device (Lightning's
+    ``auto``: the GPU when there is one) and the config's epochs, the caller's overrides on
+    top."""
     kwargs: dict[str, Any] = dict(
         max_epochs=config.epochs,
         accelerator="auto",
@@ -263,9 +392,7 @@ def _trainer_settings(
         limit_val_batches=1.0 if has_val else 0,
     )
     kwargs.update(trainer_kwargs or {})  # enable_checkpointing=False: no checkpoints/last.ckpt
-    kwargs.setdefault(
-        "log_every_n_steps", log_interval(len(datamodule.train_set), config.batch_size, kwargs, 50)
-    )
+    kwargs.setdefault("log_every_n_steps", log_interval(n_train, config.batch_size, kwargs, 50))
     kwargs["precision"] = classifier_precision(config, kwargs)
     return kwargs
 
