@@ -25,9 +25,11 @@ from pydantic import Field
 from tactile_bench.classify.store import load_classifier, save_classifier
 from tactile_bench.classify.train import (
     ClassifierConfig,
+    batchable,
     classifier_precision,
     evaluate,
     train_classifier,
+    train_classifiers,
 )
 from tactile_bench.data.braille import SECOND_UNIT_SET, BrailleSet
 from tactile_bench.data.datamodule import stratified_split, stratified_subset
@@ -88,8 +90,15 @@ class ClassifyConfig(StageConfig):
     parallel_seeds: int = Field(
         default=1,
         ge=1,
-        description="seeds trained at once, each in its own process on cores / N threads "
-        "(a small classifier gains little from a second thread); 1: in turn, in this process",
+        description="with batch_seeds false: seeds trained at once, each in its own process "
+        "on cores / N threads (a small classifier gains little from a second thread); 1: in "
+        "turn, in this process",
+    )
+    batch_seeds: bool = Field(
+        default=True,
+        description="train the seeds as one batched model (grouped convolutions, each seed "
+        "its own weights, data order and BatchNorm; the same models as one at a time within "
+        "float tolerance); false: one model a seed (parallel_seeds applies)",
     )
     heldout_fraction: float = Field(
         default=0.1, ge=0.0, lt=1.0, description="share of the training images held out"
@@ -233,6 +242,8 @@ def _train_seeds(
     the same as training it here on that many threads.
     """
     config: ClassifyConfig = ctx.config
+    if _batches_seeds(ctx):
+        return _train_batched(ctx, foreground, labels, n_classes, pool)
     workers = min(config.parallel_seeds, len(config.seeds))
     if workers <= 1:
         return [_train_one(ctx, seed, foreground, labels, n_classes, pool) for seed in config.seeds]
@@ -264,6 +275,72 @@ def _train_seeds(
         time.perf_counter() - start,
     )
     return [(load_classifier(Path(path)), held_idx) for path, held_idx in done]
+
+
+def _seed_configs(ctx: StageContext, epochs: int | None = None) -> list[ClassifierConfig]:
+    """Each seed's classifier settings (``epochs``: a fine-tuning's instead of the base's)."""
+    config: ClassifyConfig = ctx.config
+    settings = config.classifier.model_dump() | ({"epochs": epochs} if epochs else {})
+    return [ClassifierConfig(**settings, seed=seed) for seed in config.seeds]
+
+
+def _batches_seeds(ctx: StageContext) -> bool:
+    """Whether this stage trains its seeds as one batched model (said in the log when the
+    config asks for it but the fit cannot, e.g. under a launch of several processes)."""
+    config: ClassifyConfig = ctx.config
+    if not config.batch_seeds or len(config.seeds) < 2:
+        return False
+    reason = batchable(_seed_configs(ctx), ctx.trainer)
+    if reason is not None:
+        log.info("stage %s: seeds trained one at a time: %s", ctx.name, reason)
+    return reason is None
+
+
+def _train_batched(
+    ctx: StageContext,
+    foreground: torch.Tensor,
+    labels: torch.Tensor,
+    n_classes: int,
+    pool: BrailleSet | None,
+) -> list[tuple[Any, torch.Tensor]]:
+    """``_train_one`` for every seed at once: one stacked model trains all seeds, each on
+    its own training split (the same ones as one at a time), then fine-tunes them together."""
+    config: ClassifyConfig = ctx.config
+    splits = [stratified_split(labels, config.heldout_fraction, seed) for seed in config.seeds]
+    folder = ctx.directory / "seeds"
+    init = ctx.optional_input("init")
+    start = time.perf_counter()
+    if init is not None:
+        models = [load_classifier(_init_model_path(init, seed)) for seed in config.seeds]
+    else:
+        models = train_classifiers(
+            foreground,
+            labels,
+            _seed_configs(ctx),
+            folder,
+            loggers=make_loggers(folder, f"{ctx.name}-seeds"),
+            trainer_kwargs=ctx.trainer,
+            num_classes=n_classes,
+            subsets=[train_idx for train_idx, _ in splits],
+        )
+    if pool is not None:
+        models = train_classifiers(
+            pool.foreground("real"),
+            pool.labels,
+            _seed_configs(ctx, epochs=config.finetune_epochs),
+            folder / "finetune",
+            loggers=make_loggers(folder, f"{ctx.name}-seeds-finetune"),
+            trainer_kwargs=ctx.trainer,
+            num_classes=n_classes,
+            inits=models,
+        )
+    log.info(
+        "stage %s: %d seeds trained as one batched model in %.1f s",
+        ctx.name,
+        len(models),
+        time.perf_counter() - start,
+    )
+    return [(model, held_idx) for model, (_, held_idx) in zip(models, splits, strict=True)]
 
 
 def _init_model_path(init: StageResult, seed: int) -> Path:
