@@ -135,6 +135,7 @@ def test_full_tiny_run_covers_every_section(tmp_path: Path) -> None:
     assert sim["braille_contacts_per_s"] > 0 and sim["object_frames_per_s"] > 0
     assert set(sim["braille"]["phases"]) == {"depth", "sim_image", "real_image"}
     assert {"translator:diffusion", "translator:cgan", "classifier"} <= set(r["training"])
+    assert set(r["seeds"]) == {"table1", "quick"}
     for rows in r["scaling"]["epoch"].values():
         assert list(rows) == ["1x", "2x", "4x"]
     for rows in r["training"].values():
@@ -229,3 +230,20 @@ def test_objects_are_built_at_the_amortised_size() -> None:
     assert r["scaling"]["4x"]["work"] >= 40 and r["scaling"]["1x"]["work"] >= 10
     assert r["first_build_s"] > 0 and r["frames_per_s"] == r["scaling"]["4x"]["per_s"]
     assert r["marginal"]["frames_per_cpu_s"] > 0
+
+
+def test_the_seeds_row_times_both_ways_and_reports_their_ratio(result: tuple[dict, Path]) -> None:
+    import torch
+
+    from tactile_bench.bench.report import render_markdown
+    from tactile_bench.bench.training import SEED_SETTINGS, seed_batching
+
+    g = torch.Generator().manual_seed(0)
+    fg, labels = torch.rand(24, 3, 32, 32, generator=g), torch.arange(24) % 4
+    rows = seed_batching(fg, labels, images=24, seeds=2)
+    assert set(rows) == set(SEED_SETTINGS)
+    for row in rows.values():
+        assert row["in_turn_s"] > 0 and row["batched_s"] > 0
+        assert row["speedup"] == pytest.approx(row["in_turn_s"] / row["batched_s"])
+    md = render_markdown({**result[0], "seeds": rows})
+    assert "one batched model" in md and f"{rows['table1']['speedup']:.2f}x" in md

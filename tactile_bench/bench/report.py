@@ -386,6 +386,28 @@ def _training(r: dict[str, Any]) -> list[str]:
     ]
 
 
+def _seeds(r: dict[str, Any]) -> list[str]:
+    rows = [
+        [
+            name,
+            f"{row['seeds']} x {row['images']} images x {row['epochs']} epoch(s)",
+            _number(row["in_turn_s"], 1),
+            _number(row["batched_s"], 1),
+            f"{_number(row['speedup'], 2)}x",
+        ]
+        for name, row in r["seeds"].items()
+    ]
+    return [
+        "## A classify stage's seeds: one after another and as one batched model",
+        "",
+        *_table(["settings", "work", "in turn (s)", "batched (s)", "speed-up"], rows),
+        f"Measured on {r['machine']['cpu_capability']}. Wall seconds of whole trainings "
+        "(`train_classifier` per seed against `train_classifiers`, the `classify` stage's "
+        "`batch_seeds: true`), each recipe's classifier settings, the default precision.",
+        "",
+    ]
+
+
 def _scaling(r: dict[str, Any]) -> list[str]:
     sc = r["scaling"]
     lines = [
@@ -527,6 +549,8 @@ def render_markdown(r: dict[str, Any]) -> str:
         lines += _simulation(r)
     if "training" in r:
         lines += _training(r)
+    if "seeds" in r:
+        lines += _seeds(r)
     if "scaling" in r:
         lines += _scaling(r)
     if "jpeg" in r:

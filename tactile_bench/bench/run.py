@@ -44,7 +44,16 @@ from tactile_bench.sensor.optics import SimOptics
 from tactile_bench.sensor.surrogate import SurrogateDigit
 from tactile_bench.translators.diffusion import DiffusionConfig, DiffusionTranslator
 
-SECTIONS = ("startup", "simulation", "sampling", "threads", "training", "scaling", "jpeg")
+SECTIONS = (
+    "startup",
+    "simulation",
+    "sampling",
+    "threads",
+    "training",
+    "seeds",
+    "scaling",
+    "jpeg",
+)
 #: sections run only when asked for (``--only``, or ``--device`` other than the CPU)
 OPTIONAL_SECTIONS = ("device",)
 # inference settings the bench applies to a loaded checkpoint: the shipped defaults
@@ -79,6 +88,7 @@ class BenchConfig:
     epoch_sizes: dict[str, tuple[int, ...]] = field(
         default_factory=lambda: {"translator": (128, 256, 512), "classifier": (540, 1080, 2160)}
     )
+    seed_images: int = 2160
     fit_steps: int = 200
     fit_lr: float = 5e-4
     translator_overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -110,6 +120,7 @@ class BenchConfig:
             train_warmup=1,
             train_steps=3,
             epoch_sizes={"translator": (32, 64, 128), "classifier": (120, 240, 480)},
+            seed_images=480,
             fit_steps=40,
             jpeg_images=16,
             jpeg_native_images=4,
@@ -285,12 +296,12 @@ def run_bench(
             )
         if "simulation" in sections:
             result["simulation"] = _simulation_section(step, cfg)
-        needs_data = {"sampling", "threads", "training", "scaling"} & set(sections)
+        needs_data = {"sampling", "threads", "training", "seeds", "scaling"} & set(sections)
         if needs_data:
             data = step("braille data", lambda: braille_data(braille, cfg, progress))
         if {"sampling", "threads"} & set(sections):
             _model_sections(step, result, cfg, sections, data, diffusion, progress)
-        if {"training", "scaling"} & set(sections):
+        if {"training", "seeds", "scaling"} & set(sections):
             _training_sections(step, result, cfg, sections, data["finetune"], progress)
         if "device" in sections:
             sizes = DeviceBenchSizes.quick() if cfg.quick else DeviceBenchSizes()
@@ -458,6 +469,11 @@ def _training_sections(
                 progress,
                 cfg.translator_overrides,
             ),
+        )
+    if "seeds" in sections:
+        result["seeds"] = step(
+            "seeds in turn and batched",
+            lambda: training.seed_batching(fg, labels, cfg.seed_images),
         )
     if "scaling" in sections:
         sim_scaling = {}

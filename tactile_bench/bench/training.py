@@ -11,6 +11,9 @@ bf16 times ``EMULATED_BF16_STEPS`` steps after one warm-up: enough for its rate,
 full count would take an hour). Data are real braille foregrounds of the simulated
 fine-tuning set.
 
+The seeds row trains a classify stage's seeds one after another and as one batched model
+(``classify.train_classifiers``), with table1's and quick's classifier settings.
+
 The cost-versus-work check trains ONE epoch at 1x, 2x and 4x the data through the same
 entry points a recipe uses (``Translator.fit_pairs``, ``classify.train_classifier``) and
 times the epoch itself (Trainer set-up excluded, reported apart).
@@ -32,7 +35,7 @@ from torch.utils.data import DataLoader, TensorDataset
 
 from tactile_bench.bench.timing import peak_memory
 from tactile_bench.classify.module import BrailleClassifier
-from tactile_bench.classify.train import ClassifierConfig, train_classifier
+from tactile_bench.classify.train import ClassifierConfig, train_classifier, train_classifiers
 from tactile_bench.hardware import native_bf16
 from tactile_bench.translators import Translator, discover
 
@@ -273,3 +276,40 @@ def _with_linearity(rows: dict[int, dict[str, Any]]) -> dict[str, Any]:
     for n, row in rows.items():
         row["linearity"] = row["epoch_s"] / (n / base_n * base)
     return {f"{n // base_n}x": row for n, row in sorted(rows.items())}
+
+
+#: the classifier settings of the recipes' classify stages, for the seeds row
+SEED_SETTINGS: dict[str, dict[str, Any]] = {
+    "table1": dict(width=16, blocks=(1, 1, 1, 1), batch_size=64, lr=0.002),
+    "quick": dict(width=8, blocks=(1, 1, 1, 1), batch_size=32, lr=0.008),
+}
+
+
+def seed_batching(
+    foreground: torch.Tensor, labels: torch.Tensor, images: int, seeds: int = 3, epochs: int = 1
+) -> dict[str, Any]:
+    """Wall seconds of training ``seeds`` classifiers on ``images`` images (the data cycled),
+    one after another (``train_classifier``, as ``batch_seeds: false``) and as one batched
+    model (``train_classifiers``, the default), for each recipe's classifier settings."""
+    x, y = _repeat(foreground, images), _repeat(labels, images)
+    quiet = {"enable_progress_bar": False, "enable_checkpointing": False, "logger": False}
+    out: dict[str, Any] = {}
+    for name, settings in SEED_SETTINGS.items():
+        configs = [ClassifierConfig(**settings, epochs=epochs, seed=s) for s in range(seeds)]
+        with tempfile.TemporaryDirectory(prefix="tb_bench_") as tmp:
+            start = time.perf_counter()
+            for config in configs:
+                train_classifier(x, y, config, Path(tmp) / str(config.seed), [], dict(quiet))
+            in_turn = time.perf_counter() - start
+            start = time.perf_counter()
+            train_classifiers(x, y, configs, Path(tmp) / "batched", [], dict(quiet))
+            batched = time.perf_counter() - start
+        out[name] = {
+            "seeds": seeds,
+            "images": images,
+            "epochs": epochs,
+            "in_turn_s": in_turn,
+            "batched_s": batched,
+            "speedup": in_turn / batched,
+        }
+    return out
