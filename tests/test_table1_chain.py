@@ -105,11 +105,12 @@ def test_second_unit_renders_the_same_test_contacts_and_is_seen_only_by_classify
 
 def test_finetuning_rows_start_from_their_base_rows_models(table_run: Path) -> None:
     dirs = _stage_dirs(table_run)
+    # the seeds train as one batched model (batch_seeds): its files are under seeds/
     for row in ("classify_sim_ft20", "classify_sim_ft80", "classify_sim_ft100"):
-        seed_dir = dirs[row] / "seed0"
-        assert (seed_dir / "finetune").is_dir()
-        assert not (seed_dir / "checkpoints").exists()  # no second base training
-    base = dirs["classify_sim"] / "seed0"
+        seeds_dir = dirs[row] / "seeds"
+        assert (seeds_dir / "finetune").is_dir()
+        assert not (seeds_dir / "checkpoints").exists()  # no second base training
+    base = dirs["classify_sim"] / "seeds"
     assert (base / "checkpoints").is_dir() and not (base / "finetune").exists()
 
 

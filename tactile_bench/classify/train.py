@@ -272,10 +272,11 @@ def train_classifiers(
 
     ``configs`` differ only in ``seed``; returns each seed's model, in eval mode on the CPU,
     equal up to float rounding to ``train_classifier(train_fg, train_labels, configs[k],
-    init=inits[k])``'s (the same initial weights, batches and Adam steps); with
-    ``subsets``, seed k trains on ``train_fg[subsets[k]]`` as that call would (each seed's
-    own split, no copy of the images). Checkpoints, resume and loggers as there. Raises ValueError when :func:`batchable` gives a reason,
-    or when a layer of the network cannot be stacked: train the seeds one at a time then.
+    init=inits[k])``'s (the same initial weights, batches and Adam steps); with ``subsets``,
+    seed k trains on ``train_fg[subsets[k]]`` as that call would (each seed's own split, no
+    copy of the images). Checkpoints, resume and loggers as there. Raises ValueError when
+    :func:`batchable` gives a reason, or when a layer of the network cannot be stacked:
+    train the seeds one at a time then.
     """
     reason = batchable(configs, trainer_kwargs)
     if reason is not None:

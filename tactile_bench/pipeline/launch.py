@@ -198,15 +198,14 @@ def finish(launch: Launch) -> None:
     finalisation can still hold worker threads, and the process then aborts at exit
     (``terminate called without an active exception``, SIGABRT), so torchrun reports a
     finished launch failed. Only after success: a rank whose peers are gone or inside a
-    collective would wait here instead of exiting with its error.
+    collective would wait here instead of exiting with its error. The process keeps its
+    place in the launch (:func:`current`, :func:`is_leader`): a follower still prints nothing.
     """
-    global _current
     import torch.distributed as dist
 
     if dist.is_available() and dist.is_initialized():
         dist.barrier(group=launch.group)
         dist.destroy_process_group()
-    _current = None
 
 
 def _per_node() -> int:
