@@ -69,7 +69,7 @@ def register(subparsers: Any) -> None:
         "--only",
         nargs="*",
         metavar="SECTION",
-        help="startup, simulation, sampling, threads, training, scaling, jpeg, device "
+        help="startup, simulation, sampling, threads, training, seeds, scaling, jpeg, device "
         "(default: all but device; the simulation's 1x/2x/4x rows come with simulation)",
     )
     p.add_argument(
