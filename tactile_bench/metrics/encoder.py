@@ -15,7 +15,8 @@ from torch import nn
 
 
 class FeatureEncoder(nn.Module):
-    """(N, 3, S, S) images -> (N, feature_dim) features, S divisible by 8.
+    """(N, 3, H, W) images -> (N, feature_dim) features, any size (the reconstruction is
+    cropped to the input where a side is not divisible by 8).
 
     Inputs are standardised by per-channel statistics of the training images (buffers), so
     the encoder accepts images in 0..255 or foregrounds around 0.5 alike.
@@ -51,7 +52,8 @@ class FeatureEncoder(nn.Module):
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """Reconstruction of the normalised images (the training objective)."""
-        return self.decoder(self.encoder(self.normalise(images)))
+        h, w = images.shape[-2:]
+        return self.decoder(self.encoder(self.normalise(images)))[..., :h, :w]
 
     @torch.no_grad()
     def features(self, images: torch.Tensor, batch_size: int = 256) -> torch.Tensor:
