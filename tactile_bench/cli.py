@@ -172,15 +172,43 @@ def _cmd_data(ns: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_ground(ns: argparse.Namespace) -> int:
+def _json_out(ns: argparse.Namespace, report: dict) -> None:
+    """``--json``: every number printed (``-``, the flag alone) or written to ``--json FILE``."""
     import json
 
-    from tactile_bench.sensor.grounding import default_real_dir, grounding_report
+    from tactile_bench.io import atomic_write_text
 
-    if ns.refit or ns.profile:
-        return _ground_on_presses(ns)
+    text = json.dumps(report, indent=2, default=float)
+    if ns.json == "-":
+        print(text)
+    else:
+        atomic_write_text(Path(ns.json), text + "\n")
 
-    from tactile_bench.sensor.grounding import BACKGROUND_FILE, POLYCALIB_FILE
+
+def _cmd_ground(ns: argparse.Namespace) -> int:
+    from contextlib import nullcontext
+
+    from tactile_bench.guard.outputs import OutputLock, check_output_file
+
+    json_file = ns.json is not None and ns.json != "-"
+    if json_file:
+        check_output_file(ns.json, "--json", (".json",))
+    with OutputLock(ns.json, "--json") if json_file else nullcontext():
+        if ns.pairs_dir is not None:
+            return _ground_on_pairs(ns)
+        if ns.refit or ns.profile:
+            return _ground_on_presses(ns)
+        return _ground_digit(ns)
+
+
+def _ground_digit(ns: argparse.Namespace) -> int:
+    """``ground``: the DIGIT's background and optics against the real reference files."""
+    from tactile_bench.sensor.grounding import (
+        BACKGROUND_FILE,
+        POLYCALIB_FILE,
+        default_real_dir,
+        grounding_report,
+    )
 
     real_dir = Path(ns.real_dir) if ns.real_dir else default_real_dir()
     if real_dir is None or not real_dir.is_dir():
@@ -194,8 +222,8 @@ def _cmd_ground(ns: argparse.Namespace) -> int:
             f"{real_dir}: nothing to measure: neither {BACKGROUND_FILE} nor {POLYCALIB_FILE}"
         )
     report = grounding_report(real_dir)
-    if ns.json:
-        print(json.dumps(report, indent=2, default=float))
+    if ns.json is not None:
+        _json_out(ns, report)
         return 0
     print(f"surrogate DIGIT against real measurements in {real_dir}")
 
@@ -231,8 +259,6 @@ def _cmd_ground(ns: argparse.Namespace) -> int:
 
 def _ground_on_presses(ns: argparse.Namespace) -> int:
     """``ground --profile``: a profile against held-out real presses (or ``--refit``)."""
-    import json
-
     from tactile_bench.real_presses import ground_profile, print_ground, refit_module
 
     if ns.refit:
@@ -243,13 +269,36 @@ def _ground_on_presses(ns: argparse.Namespace) -> int:
         raise TactileBenchError(f"--figure {figure}: must be a .png file path")
     if figure is not None and figure.parent.exists() and not figure.parent.is_dir():
         raise TactileBenchError(f"--figure {figure}: {figure.parent} is not a folder")
-    report = ground_profile(ns.profile, figure=figure)
-    if ns.json:
-        print(json.dumps(report, indent=2))
+    report = ground_profile(ns.profile, size=ns.size, figure=figure)
+    if ns.json is not None:
+        _json_out(ns, report)
     else:
         print_ground(report)
         if figure is not None:
             print(f"  figure: {figure}")
+    return 0
+
+
+def _ground_on_pairs(ns: argparse.Namespace) -> int:
+    """``ground --profile P --pairs DIR``: a profile on every pair of a paired folder."""
+    from tactile_bench.real_presses import ground_pairs, print_ground_pairs
+
+    if ns.profile is None:
+        raise TactileBenchError("--pairs: needs --profile (the profile to score on the pairs)")
+    for flag_, value in (
+        ("--refit", ns.refit),
+        ("--figure", ns.figure),
+        ("--real-dir", ns.real_dir),
+    ):
+        if value:
+            raise TactileBenchError(f"{flag_}: not with --pairs")
+    report = ground_pairs(ns.profile, Path(ns.pairs_dir), size=ns.size)
+    if ns.json is not None:
+        _json_out(ns, {k: report[k] for k in ("n_pairs", "sim", "profile")})
+    if ns.json != "-":
+        print_ground_pairs(report)
+        if ns.json is not None:
+            print(f"  wrote {ns.json}")
     return 0
 
 
@@ -404,12 +453,27 @@ def _add_ground(sub: argparse._SubParsersAction) -> None:
         "or (--profile) held-out real GelSight presses",
     )
     ground.add_argument("--real-dir", help="folder with the reference files (default: found)")
-    ground.add_argument("--json", action="store_true", help="print every number as JSON")
+    ground.add_argument(
+        "--json",
+        nargs="?",
+        const="-",
+        metavar="FILE",
+        help="every number as JSON: printed, or written to FILE (.json)",
+    )
     ground.add_argument(
         "--profile",
         help="a GelSight profile (gelsight, gelsight-mini) against held-out real presses "
-        "from the taxim package (pip install -e '.[real]')",
+        "from the taxim package (pip install -e '.[real]'); with --pairs any profile "
+        "(a name or a YAML path)",
     )
+    ground.add_argument(
+        "--pairs",
+        dest="pairs_dir",
+        metavar="DIR",
+        help="with --profile: score it and the plain simulator on every pair of a paired "
+        "folder (depth/, real/, background.png, gel.json)",
+    )
+    ground.add_argument("--size", type=int, default=64, help="image side the pairs are scored at")
     ground.add_argument("--figure", help="with --profile: write depth | sim | surrogate | real")
     ground.add_argument(
         "--refit",

@@ -17,13 +17,21 @@ import torch.nn.functional as F
 from tactile_bench.data.ball_presses import TAXIM_SENSORS, BallPresses, load_ball_presses
 from tactile_bench.data.corpus import CorpusPairs, load_pairs
 from tactile_bench.data.ycb_slide import build_ycb_slide_standin
-from tactile_bench.diagnose.paired import DiagnosisPairs
+from tactile_bench.diagnose.paired import (
+    DIGIT_GEL_MM,
+    GEL_FILE,
+    DiagnosisPairs,
+    detect_layout,
+    load_paired,
+    read_gel,
+)
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.guard.args import MAX_SIZE
 from tactile_bench.metrics.encoder import fit_encoder, kid
 from tactile_bench.metrics.image import ssim_mse
 from tactile_bench.sensor.depth import GelSpec
+from tactile_bench.sensor.pair_scoring import render_pairs, score_profile
 from tactile_bench.sensor.press_grounding import (
-    contact_mask,
     fit_sensor,
     format_fit_module,
     press_figure,
@@ -72,16 +80,16 @@ def ground_profile(profile: str, size: int = 64, seed: int = 0, figure: Path | N
     start = time.perf_counter()
     surrogate, sensor = profile_sensor(profile)
     test = heldout_presses(sensor, size)
-    gel = surrogate.gel(size)
-    real, background = _pool(test.real, size), _pool(test.background[None], size)[0]
-    depth = _pool(test.depth, size)
-    generator = torch.Generator().manual_seed(seed)
+    renders = render_pairs(
+        surrogate, test.depth, test.real, test.background, surrogate.gel(size), seed
+    )
+    real, depth = renders.real, renders.depth
     images = {
-        "sim": sim_render(depth, background, gel),
-        "surrogate": surrogate.render_surface(test.depth, gel, generator),
-        "no contact": background.expand_as(real),
+        "sim": renders.sim,
+        "surrogate": renders.profile,
+        "no contact": renders.background.expand_as(real),
     }
-    mask = contact_mask(depth)
+    mask = renders.mask
     rows = {name: press_metrics(img, real, mask) for name, img in images.items()}
     if figure is not None:
         columns = {
@@ -102,6 +110,73 @@ def ground_profile(profile: str, size: int = 64, seed: int = 0, figure: Path | N
         "summary": {name: summarise(r) for name, r in rows.items()},
         "seconds": round(time.perf_counter() - start, 2),
     }
+
+
+#: how far a paired folder's gel view may differ from a profile's (each side, relative)
+GEL_TOLERANCE = 0.02
+
+
+def check_gel_match(
+    pairs_dir: Path, folder_gel: tuple[float, float], profile: str, profile_gel: GelSpec
+) -> None:
+    """A profile renders its own gel view: pairs of another view (more than 2% apart on a
+    side) would be scored against frames of another geometry. Refused in one line."""
+    ours = (profile_gel.width_mm, profile_gel.height_mm)
+    if all(abs(a / b - 1) <= GEL_TOLERANCE for a, b in zip(folder_gel, ours, strict=True)):
+        return
+    gel_file = pairs_dir / GEL_FILE
+    where = f"{gel_file}:" if gel_file.exists() else f"{pairs_dir}: no {GEL_FILE}, so"
+    raise TactileBenchError(
+        f"{where} the pairs show a {folder_gel[0]:g} x {folder_gel[1]:g} mm gel view but "
+        f"--profile {profile} renders {ours[0]:g} x {ours[1]:g} mm (more than "
+        f"{GEL_TOLERANCE:.0%} apart): give a profile of that sensor, or fix {GEL_FILE}"
+    )
+
+
+def ground_pairs(profile: str, pairs_dir: Path, size: int = 64, seed: int = 0) -> dict:
+    """A profile (name or YAML path) and the plain simulator against every pair of a paired
+    folder (``diagnose.paired``'s layout: depth/, real/, background.png, gel.json; sim/ is
+    not used). Read at twice ``size`` (the profile's oversampling), scored at ``size``."""
+    start = time.perf_counter()
+    if 2 * size > MAX_SIZE:
+        raise TactileBenchError(
+            f"--size: at most {MAX_SIZE // 2} with --pairs (depth is read at twice the size)"
+        )
+    surrogate = SurrogateDigit.from_profile(profile)
+    pairs_dir = Path(pairs_dir)
+    layout, base = detect_layout(pairs_dir)
+    if layout != "paired" or (base / "depth").is_dir():  # else load_paired names depth/
+        folder_gel = read_gel(base) if layout == "paired" else DIGIT_GEL_MM
+        check_gel_match(pairs_dir, folder_gel, profile, surrogate.gel(size))  # before reading
+    data = load_paired(base, 2 * size, render_missing_sim=True)
+    report = score_profile(
+        surrogate, data.depth, data.real, data.background, data.gel_mm, size, seed
+    )
+    return report | {
+        "profile_name": profile,
+        "pairs": str(pairs_dir),
+        "gel_mm": list(data.gel_mm),
+        "size": size,
+        "seconds": round(time.perf_counter() - start, 2),
+    }
+
+
+def print_ground_pairs(report: dict) -> None:
+    """``ground --pairs``: the two models' means +- std over the pairs as a short table."""
+    w, h = report["gel_mm"]
+    print(
+        f"profile {report['profile_name']} against {report['n_pairs']} pairs of {report['pairs']} "
+        f"({w:g} x {h:g} mm gel view), {report['size']} x {report['size']}"
+    )
+    print(f"  {'model':<12} {'MSE':>14} {'SSIM':>16} {'contact MSE':>16}")
+    for name in ("sim", "profile"):
+        m = summarise(report["per_frame"][name])
+        print(
+            f"  {name:<12} {m['mse']['mean']:>7.1f} +- {m['mse']['std']:<5.1f}"
+            f" {m['ssim']['mean']:>7.4f} +- {m['ssim']['std']:<6.4f}"
+            f" {m['contact_mse']['mean']:>7.1f} +- {m['contact_mse']['std']:<5.1f}"
+        )
+    print(f"  {report['seconds']:.1f} s")
 
 
 def press_pairs(sensor: str, size: int = 64) -> DiagnosisPairs:

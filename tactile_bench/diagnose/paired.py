@@ -55,6 +55,8 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL, MAX_SIZE, MIN_SIZE
 from tactile_bench.guard.images import MIN_SIDE, open_header
 from tactile_bench.guard.limits import check_memory
+from tactile_bench.sensor.depth import GelSpec
+from tactile_bench.sensor.press_grounding import sim_render
 
 log = logging.getLogger(__name__)
 
@@ -201,7 +203,10 @@ def _listing(folder: Path) -> dict[str, tuple[str, Path]]:
     if folder.exists() and not folder.is_dir():
         raise TactileBenchError(f"{folder}: is a file, not a folder")
     if not folder.is_dir():
-        raise TactileBenchError(f"{folder}: folder not found")
+        raise TactileBenchError(
+            f"{folder}: folder not found; a paired folder holds depth/, real/ and sim/ "
+            "(PNG frames of each pair) beside background.png (docs/diagnosis.md)"
+        )
     out: dict[str, tuple[str, Path]] = {}
     seen: dict[tuple[str, str], Path] = {}  # (label, name ignoring case) -> first file
 
@@ -293,14 +298,16 @@ def _frame_sizes(root: Path, firsts: dict[str, Path]) -> dict[str, tuple[int, in
     return sizes
 
 
-def _load_layout(root: Path, size: int | None = None) -> DiagnosisPairs:
+def _load_layout(root: Path, size: int | None = None, render_sim: bool = False) -> DiagnosisPairs:
     """The paired layout. Each part's frames share one size; the parts may differ (a
-    renderer's 120 x 160 beside a camera's 240 x 320): each frame is resized on its own."""
-    listings = {part: _listing(root / part) for part in PARTS}
+    renderer's 120 x 160 beside a camera's 240 x 320): each frame is resized on its own.
+    ``render_sim`` and no sim/: the plain simulator's images over the real no-contact frame."""
+    parts = PARTS if not render_sim or (root / "sim").exists() else ("depth", "real")
+    listings = {part: _listing(root / part) for part in parts}
     depth_files = listings["depth"]
     if not depth_files:
         raise TactileBenchError(f"{root / 'depth'}: no PNG images")
-    for part in ("sim", "real"):
+    for part in parts[1:]:
         for key in depth_files:
             if key not in listings[part]:
                 raise TactileBenchError(
@@ -312,9 +319,9 @@ def _load_layout(root: Path, size: int | None = None) -> DiagnosisPairs:
                     f"{root / part / key}: unpaired (no {root / 'depth' / key})"
                 )
     first_key = next(iter(depth_files))
-    frames = _frame_sizes(root, {p: root / p / first_key for p in PARTS})
+    frames = _frame_sizes(root, {p: root / p / first_key for p in parts})
     gel = read_gel(root)
-    for part in PARTS:
+    for part in parts:
         _check_aspect(root / part / first_key, frames[part], gel)
     side = working_side(list(frames.values()), size)
     kept = frames["real"] if side is None else (side, side)  # resized as each is read
@@ -329,14 +336,20 @@ def _load_layout(root: Path, size: int | None = None) -> DiagnosisPairs:
     depth, sim, real, labels, names = [], [], [], [], []
     for key, (label, path) in depth_files.items():
         depth.append(read_depth(path, frames["depth"], side))
-        sim.append(read_rgb(root / "sim" / key, frames["sim"], side))
+        if "sim" in frames:
+            sim.append(read_rgb(root / "sim" / key, frames["sim"], side))
         real.append(read_rgb(root / "real" / key, frames["real"], side))
         labels.append(label)
         names.append(path.stem)
     # a no-contact frame is a frame of its side's camera: the same size as that side's
     background = read_rgb(root / "background.png", frames["real"], side)
     sim_bg_path = root / "sim_background.png"
-    sim_bg = read_rgb(sim_bg_path, frames["sim"], side) if sim_bg_path.exists() else None
+    sim_bg = None
+    if "sim" not in frames:  # composited onto the real frame, as TACTO's images are
+        gel_spec = GelSpec(gel[0], gel[1], background.shape[-1], 1)
+        sim = list(sim_render(torch.stack(depth), background, gel_spec).round().clamp(0, 255))
+    elif sim_bg_path.exists():
+        sim_bg = read_rgb(sim_bg_path, frames["sim"], side)
     return DiagnosisPairs(
         torch.stack(depth),
         torch.stack(sim),
@@ -415,16 +428,20 @@ def _first_background(pairs: CorpusPairs, base: Path) -> torch.Tensor:
     return pairs.real_background[pairs.real_bg_index[0]]
 
 
-def load_paired(root: str | os.PathLike, size: int | None = None) -> DiagnosisPairs:
+def load_paired(
+    root: str | os.PathLike, size: int | None = None, render_missing_sim: bool = False
+) -> DiagnosisPairs:
     """Read ``root`` in the paired layout or the Tactile-Diffusion braille layout, as
     ``size`` x ``size`` images (``working_side`` for the paired layout when None; the
-    Tactile-Diffusion frames are area-resized to 64 then, like the paper's)."""
+    Tactile-Diffusion frames are area-resized to 64 then, like the paper's).
+    ``render_missing_sim``: a paired folder without sim/ gets the plain simulator's images
+    (noise-free) over its real no-contact frame; else sim/ is required."""
     if size is not None and not MIN_SIZE <= size <= MAX_SIZE:  # the CLI's bounds
         raise TactileBenchError(f"--size: must be between {MIN_SIZE} and {MAX_SIZE}, got {size}")
     layout, base = detect_layout(root)
     if layout == "tactile_diffusion":
         return _load_tactile_diffusion(base, size or DEFAULT_SIDE)
-    return _load_layout(base, size)
+    return _load_layout(base, size, render_missing_sim)
 
 
 # ----------------------------------------------------------------------------- writing

@@ -1,4 +1,5 @@
-"""Compact optical response of a real DIGIT, fitted from Taxim's polycalib table.
+"""Compact optical response of a real DIGIT, fitted from Taxim's polycalib table, and its
+no-contact field (``DIGIT_BACKGROUND_DCT``, at the end).
 
 Source: ``../shared/real/digit_polycalib.npz`` (Robo-Touch/Taxim ``calibs/digit/polycalib.npz``,
 MIT). Fitted by ``tactile_bench.sensor.grounding.fit_optical_response`` (least squares over all
@@ -112,4 +113,33 @@ RESPONSE_WEIGHTS = (((   6.86,   -7.48,  -14.51,   -1.20,   11.24,    3.87),
  (( -29.24,   17.12,   20.32,   -2.07,   -2.19,   -3.59),
   (  19.37,  -21.58,    0.56,    2.82,    5.54,    7.20),
   ( -53.10,   14.75,   88.27,    1.98,  -37.62,   -1.09)))
+# fmt: on
+
+# The DIGIT's no-contact field: (channel, k_y, k_x) coefficients of
+# cos(pi k_y (i + .5) / H) cos(pi k_x (j + .5) / W), least-squares fit
+# (tactile_bench.sensor.grounding.fit_background_dct) to
+# ../shared/real/digit_background_240x320.jpg (TACTO's bg_digit_240_320.jpg, MIT).
+# Residual RMSE vs that frame: R 6.8, G 2.3, B 4.0 (0-255); the rest is JPEG texture and
+# the sharp rim at the frame edge.
+# fmt: off
+DIGIT_BACKGROUND_DCT = ((( 99.26,  38.99, -17.47,  -2.86,  -0.94,   0.39),
+  ( 28.57,   5.69, -14.17,  -0.50,   0.63,   0.01),
+  (-22.59, -19.23,   0.84,   2.42,  -1.55,   0.05),
+  (-13.06,  -6.04,   4.86,   2.07,   0.19,  -1.15),
+  ( -3.36,  -1.33,  -1.91,   1.25,   0.06,  -2.51),
+  ( -0.46,   1.00,  -0.38,  -0.67,  -0.08,   0.41)),
+
+ ((105.20, -11.81,  -8.18,   0.86,  -1.50,  -0.48),
+  ( 15.61,   2.53,  -1.38,  -1.30,   0.89,  -0.72),
+  (-10.77,   6.43,   5.15,  -0.76,  -0.57,   0.18),
+  ( -2.32,   2.99,   0.92,   0.70,  -0.82,  -0.10),
+  ( -3.70,  -0.21,   0.35,   0.16,   0.26,   0.24),
+  (  0.19,   0.51,   0.03,   0.10,   0.04,   0.20)),
+
+ (( 98.74,  15.55,  -9.90,  -0.79,  -2.05,  -0.24),
+  ( 16.76,  -6.19,   4.19,  -0.05,   1.11,  -0.03),
+  (  1.69,  -8.77,  -0.14,   0.24,   0.06,  -0.04),
+  ( 13.59,   2.29,  -6.56,   0.35,  -2.28,   0.43),
+  ( -4.17,  -1.19,   2.11,  -0.29,   0.40,  -0.28),
+  (  3.01,  -0.62,   0.11,  -0.02,   0.93,   0.66)))
 # fmt: on

@@ -15,13 +15,7 @@ from functools import lru_cache
 import torch
 import torch.nn.functional as F
 
-from tactile_bench.effects import _taxim_fit
-from tactile_bench.effects._optics_fit import (
-    LED_AZIMUTH_DEG,
-    N_HARM,
-    N_MAG,
-    RESPONSE_WEIGHTS,
-)
+from tactile_bench.effects._optics_fit import N_HARM, N_MAG
 from tactile_bench.effects.base import (
     Effect,
     EffectContext,
@@ -33,7 +27,7 @@ from tactile_bench.effects.base import (
     scalar,
 )
 from tactile_bench.effects.kernels import pixel_grid, surface_gradient
-from tactile_bench.errors import TactileBenchError
+from tactile_bench.effects.sensors import sensor_fit
 
 # Depth (mm) over which a contact's flat-slope colour offset fades in.
 CONTACT_OFFSET_MM = 0.05
@@ -54,24 +48,12 @@ def new_scene(
     )
 
 
-_WEIGHTS = torch.tensor(RESPONSE_WEIGHTS, dtype=torch.float32)  # (F, 3, 6)
-
-#: per sensor: (response weights (F, 3, 6), LED azimuths (deg, R, G, B)), each fitted to that
-#: sensor's real calibration (DIGIT: ``_optics_fit``; GelSight, Mini: ``_taxim_fit``)
-SENSOR_OPTICS: dict[str, tuple[torch.Tensor, tuple[float, ...]]] = {
-    "digit": (_WEIGHTS, LED_AZIMUTH_DEG),
-    **{
-        name: (torch.tensor(fit["response_weights"], dtype=torch.float32), fit["led_azimuth_deg"])
-        for name, fit in _taxim_fit.SENSORS.items()
-    },
-}
-
-
 def sensor_optics(sensor: str) -> tuple[torch.Tensor, tuple[float, ...]]:
-    """(response weights, LED azimuths) of a known sensor; unknown names are an error."""
-    if sensor not in SENSOR_OPTICS:
-        raise TactileBenchError(f"unknown sensor {sensor!r}; known: {sorted(SENSOR_OPTICS)}")
-    return SENSOR_OPTICS[sensor]
+    """(response weights (F, 3, 6), LED azimuths (deg, R, G, B)) of a registered sensor
+    (``effects.sensors``: the DIGIT's from ``_optics_fit``, the GelSights' from
+    ``_taxim_fit``, a profile's own); unknown names are an error."""
+    fit = sensor_fit(sensor)
+    return fit.response_weights, fit.led_azimuth_deg
 
 
 def response_features(gx: torch.Tensor, gy: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
@@ -128,7 +110,8 @@ def response_fields(weights: torch.Tensor, h: int, w: int) -> torch.Tensor:
 def _response_fields(
     h: int, w: int, sensor: str = "digit", device: torch.device | str = "cpu"
 ) -> torch.Tensor:
-    """A known sensor's ``response_fields``, cached per size and device."""
+    """A registered sensor's ``response_fields``, cached per size and device (a key stands
+    for one set of numbers, ``effects.sensors``: the cache is never stale)."""
     return response_fields(sensor_optics(sensor)[0].to(device), h, w)
 
 

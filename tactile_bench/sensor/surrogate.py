@@ -40,10 +40,11 @@ from tactile_bench.effects.base import ActsOn, EffectContext, ParamValue
 from tactile_bench.effects.draws import replay_draws
 from tactile_bench.effects.kernels import area_pool
 from tactile_bench.effects.optics import new_scene
+from tactile_bench.effects.sensors import SensorFit, check_sensor_name, register_sensor
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.contacts import Poses
 from tactile_bench.guard.safe_yaml import load_yaml_file
-from tactile_bench.sensor.background import GEL_MM, UNITS, digit_background
+from tactile_bench.sensor.background import UNITS, digit_background, gel_mm, unit_field
 from tactile_bench.sensor.depth import GelSpec, render_height
 from tactile_bench.sensor.heightfield import HeightFieldBank
 from tactile_bench.sensor.optics import SimOptics
@@ -51,7 +52,7 @@ from tactile_bench.sensor.timing import timed_span
 
 PROFILE_DIR = Path(__file__).with_name("profiles")
 NO_CONTACT_MM = 1.0  # object distance from the gel for the no-contact frame
-_PROFILE_KEYS = {"name", "unit", "description", "effects"}
+_PROFILE_KEYS = {"name", "unit", "description", "effects", "sensor"}
 
 
 def available_profiles() -> list[str]:
@@ -105,14 +106,28 @@ class SurrogateDigit:
         name: str = "custom",
         description: str = "",
         source: str = "<code>",
+        sensor_fit: SensorFit | None = None,
     ) -> None:
-        if unit not in UNITS:
+        if sensor_fit is not None:  # a profile's own sensor: the unit is its registry key
+            if unit not in (sensor_fit.name, sensor_fit.key):
+                raise TactileBenchError(
+                    f"{source}: unit: {unit!r} must name the profile's sensor ({sensor_fit.name!r})"
+                )
+            unit = register_sensor(sensor_fit)
+        elif unit not in UNITS:
             raise TactileBenchError(f"{source}: unit: unknown {unit!r}; known: {sorted(UNITS)}")
         self.unit = unit
         self.name = name
         self.description = description
         self.source = source
+        self.sensor_fit = sensor_fit
         self._effects = _check_effects(effects or {}, source)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickled (a spawned worker): its own sensor is registered in this process too."""
+        self.__dict__.update(state)
+        if self.sensor_fit is not None:
+            register_sensor(self.sensor_fit)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -126,17 +141,35 @@ class SurrogateDigit:
                 f"{path}: no such surrogate profile; built-in: {available_profiles()}"
             )
         data = load_yaml_file(path, "profile")  # regular file, bounded aliases, no dup keys
+        return cls.from_mapping(data, str(path), path.stem)
+
+    @classmethod
+    def from_mapping(cls, data: Any, source: str, default_name: str = "custom") -> SurrogateDigit:
+        """A profile's parsed YAML; errors name ``source`` (the file) and the key.
+
+        With a ``sensor:`` block (a sensor fit: ``effects.sensors.SensorFit.from_mapping``),
+        ``unit`` names that sensor (default: the profile's name)."""
         if not isinstance(data, Mapping):
-            raise TactileBenchError(f"{path}: must be a mapping with keys {sorted(_PROFILE_KEYS)}")
+            raise TactileBenchError(
+                f"{source}: must be a mapping with keys {sorted(_PROFILE_KEYS)}"
+            )
         extra = set(data) - _PROFILE_KEYS
         if extra:
-            raise TactileBenchError(f"{path}: {sorted(extra)[0]}: unknown key")
+            raise TactileBenchError(f"{source}: {sorted(extra)[0]}: unknown key")
+        name = str(data.get("name", default_name))
+        fit = None
+        if "sensor" in data:  # its name is the unit's (or, without one, the profile's)
+            unit = check_sensor_name(
+                data.get("unit", name), source, "unit" if "unit" in data else "name"
+            )
+            fit = SensorFit.from_mapping(unit, data["sensor"], source)
         return cls(
             effects=data.get("effects") or {},
-            unit=str(data.get("unit", "digit")),
-            name=str(data.get("name", path.stem)),
+            unit=str(data.get("unit", name if fit is not None else "digit")),
+            name=name,
             description=str(data.get("description", "")),
-            source=str(path),
+            source=source,
+            sensor_fit=fit,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -155,12 +188,13 @@ class SurrogateDigit:
 
     @property
     def sensor(self) -> str:
-        """The sensor model of this unit (``digit``, ``gelsight``, ``gelsight-mini``)."""
-        return UNITS[self.unit].sensor
+        """The sensor model of this unit (``digit``, ``gelsight``, ``gelsight-mini``, or a
+        profile's own sensor's registry key ``<name>@<hash>``)."""
+        return unit_field(self.unit).sensor
 
     def gel(self, size: int = 64, oversample: int = 2) -> GelSpec:
         """This sensor's view of its gel at ``size`` x ``size`` (the DIGIT's 18 x 24 mm, ...)."""
-        width, height = GEL_MM[self.sensor]
+        width, height = gel_mm(self.sensor)
         return GelSpec(width, height, size, oversample)
 
     # ------------------------------------------------------------------ effect switches
@@ -177,7 +211,12 @@ class SurrogateDigit:
 
     def _copy(self, effects: Mapping[str, Mapping[str, ParamValue]], suffix: str) -> SurrogateDigit:
         return SurrogateDigit(
-            effects, self.unit, f"{self.name}{suffix}", self.description, self.source
+            effects,
+            self.unit,
+            f"{self.name}{suffix}",
+            self.description,
+            self.source,
+            self.sensor_fit,
         )
 
     def without(self, *names: str) -> SurrogateDigit:

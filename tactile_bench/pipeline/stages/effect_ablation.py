@@ -18,9 +18,10 @@ from pydantic import Field
 from tactile_bench.classify.store import load_classifier
 from tactile_bench.classify.train import evaluate
 from tactile_bench.data.braille import BrailleSet
+from tactile_bench.errors import TactileBenchError
 from tactile_bench.geometry.braille import CHARACTERS, BrailleSpec
 from tactile_bench.io import atomic_write_json, atomic_write_text
-from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind, real_sensor
 from tactile_bench.report.figures import save_figure
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.heightfield import build_bank
@@ -59,9 +60,15 @@ def _bar_png(rows: list[dict[str, Any]], base: float, path: Any) -> None:
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: AblationConfig = ctx.config
     data, clf = ctx.input("data"), ctx.input("classifier")
+    if "real_sensor" not in data.metrics:
+        raise TactileBenchError(
+            f"stage {ctx.name}: data stage {data.name!r} ({data.kind}) has no surrogate "
+            "real_sensor to switch effects off in; connect a braille_data stage"
+        )
     model = load_classifier(clf.path(f"model_seed{config.seed}"))
     test = BrailleSet.load(data.path("classifier_test"))
-    sensor = SurrogateDigit.from_profile(data.metrics["real_sensor"])
+    # a YAML path is read relative to the recipe's folder, as the data stage read it
+    sensor = real_sensor(data.metrics["real_sensor"], ctx.recipe_dir)
     chars = tuple(CHARACTERS[: int(test.labels.max()) + 1])
     bank, gel = build_bank(chars, BrailleSpec()), GelSpec(size=test.depth.shape[-1])
     base = _accuracy(model, sensor, test, bank, gel, ctx.seed)
