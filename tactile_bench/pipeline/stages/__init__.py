@@ -7,6 +7,7 @@ from tactile_bench.pipeline.stages import (
     diagnose,
     effect_ablation,
     fit_translator,
+    paired_data,
     report,
     translate,
     ycb_slide_data,
@@ -18,6 +19,7 @@ STAGES: dict[str, StageKind] = {
     for stage in (
         braille_data.STAGE,
         ycb_slide_data.STAGE,
+        paired_data.STAGE,
         fit_translator.STAGE,
         translate.STAGE,
         classify.STAGE,

@@ -34,7 +34,6 @@ from tactile_bench.classify.train import (
 from tactile_bench.data.braille import SECOND_UNIT_SET, BrailleSet
 from tactile_bench.data.datamodule import stratified_split, stratified_subset
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.hardware import Precision, compute_device
 from tactile_bench.io import atomic_write_json, load_npz
 from tactile_bench.pipeline.loggers import make_loggers
@@ -44,6 +43,7 @@ from tactile_bench.pipeline.stages.base import (
     StageKind,
     StageResult,
 )
+from tactile_bench.pipeline.stages.paired_data import class_names
 from tactile_bench.pools import cancel_pending, forget_kept_pool, kept_pool
 from tactile_bench.report.figures import confusion_png, per_class_bar_png
 from tactile_bench.translators import image_to_foreground
@@ -370,7 +370,12 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     unit = _second_unit(ctx)
     test_fg = test.foreground("real")
     n_classes = int(max(labels.max(), test.labels.max())) + 1
-    classes = list(CHARACTERS[:n_classes])
+    if n_classes < 2:
+        raise TactileBenchError(
+            f"stage {ctx.name}: data stage {ctx.input('data').name!r} has one label only; "
+            "a classifier needs two or more (a paired folder: one subfolder a label)"
+        )
+    classes = class_names(ctx.input("data"), n_classes)
 
     pool = _real_finetune_pool(ctx)
     trained = _train_seeds(ctx, foreground, labels, n_classes, pool)

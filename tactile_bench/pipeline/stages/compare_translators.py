@@ -9,11 +9,11 @@ import torch
 from pydantic import Field
 
 from tactile_bench.data.braille import BrailleSet
-from tactile_bench.geometry.braille import CHARACTERS
 from tactile_bench.hardware import compute_device
 from tactile_bench.io import atomic_write_json, atomic_write_text, load_npz
 from tactile_bench.metrics.encoder import fit_encoder, kid
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
+from tactile_bench.pipeline.stages.paired_data import class_names
 from tactile_bench.report.figures import sample_grid_png
 
 PAPER_SIMILARITY = {"diffusion": (0.908, 36.02), "cgan": (0.879, 47.99)}
@@ -26,6 +26,15 @@ class CompareConfig(StageConfig):
     encoder_steps: int = Field(
         default=300, ge=1, description="training steps of the KID feature encoder"
     )
+
+
+def _picks(labels: torch.Tensor, k: int) -> list[int]:
+    """Up to ``k`` contacts for the grid: the first of each label, then (fewer labels than
+    rows: a user's folder with one label or none) the next contacts in order."""
+    first = [int(torch.nonzero(labels == c).flatten()[0]) for c in torch.unique(labels)]
+    taken = set(first)
+    rest = [i for i in range(len(labels)) if i not in taken]
+    return (first + rest)[:k]
 
 
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
@@ -42,13 +51,9 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     )
     real_features = encoder.features(test.real.float())
     rows = []
-    picks = []
-    for label in range(int(test.labels.max()) + 1):
-        hits = torch.nonzero(test.labels == label).flatten()
-        if len(hits):
-            picks.append(int(hits[0]))
-    picks = picks[: config.samples]
+    picks = _picks(test.labels, config.samples)
     columns = {"depth": test.depth[picks], "real": test.real[picks]}
+    names = class_names(data, int(test.labels.max()) + 1)
     for result in ctx.inputs["translated"]:
         name = result.metrics["translator"]
         sim = result.metrics["test_similarity"]
@@ -68,9 +73,9 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         columns[title] = images[picks]
     sample_grid_png(
         columns,
-        [CHARACTERS[int(test.labels[i])] for i in picks],
+        [names[int(test.labels[i])] for i in picks],
         ctx.directory / "samples.png",
-        title="braille test contacts",
+        title="test contacts",
     )
     lines = [
         "| translator | stage | SSIM | MSE | KID, own encoder (± std) | paper SSIM | paper MSE |",

@@ -57,10 +57,24 @@ class FitTranslatorConfig(StageConfig):
     )
 
 
+def recipe_translator_config(name: str, config: dict[str, Any], base_dir: Path) -> dict[str, Any]:
+    """``config`` with the translator's file keys (its ``path_keys``, e.g. ``profile``'s
+    ``profile``) read from the recipe's folder, as every path in a recipe is; a value
+    without a suffix is a name (a built-in profile), not a path."""
+    out = dict(config)
+    for key in getattr(translator_class(name), "path_keys", ()):
+        value = out.get(key)
+        if isinstance(value, str) and Path(value).suffix:
+            out[key] = str(resolve_source(value, base_dir))
+    return out
+
+
 def _check(config: FitTranslatorConfig, base_dir: Path) -> None:
     try:
         kind = translator_class(config.translator)
-        kind.parse_config(config.translator_config)
+        kind.parse_config(
+            recipe_translator_config(config.translator, config.translator_config, base_dir)
+        )
     except TactileBenchError as exc:
         raise TactileBenchError(f"translator: {exc}") from None
     if config.init_checkpoint is not None:
@@ -126,7 +140,10 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         previous = translator_class(config.translator).load(
             resolve_source(config.init_checkpoint, ctx.recipe_dir)
         )
-    translator = create_translator(config.translator, config.translator_config)
+    translator = create_translator(
+        config.translator,
+        recipe_translator_config(config.translator, config.translator_config, ctx.recipe_dir),
+    )
     if previous is not None:
         if type(previous) is not type(translator):
             raise TactileBenchError(

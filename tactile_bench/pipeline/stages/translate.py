@@ -23,7 +23,7 @@ from tactile_bench.hardware import compute_device
 from tactile_bench.io import atomic_write_json, atomic_write_npz
 from tactile_bench.metrics.image import ssim_mse
 from tactile_bench.pipeline.stages.base import StageConfig, StageContext, StageKind
-from tactile_bench.pipeline.stages.fit_translator import load_fitted
+from tactile_bench.pipeline.stages.fit_translator import load_fitted, recipe_translator_config
 from tactile_bench.translators import create_translator, translator_class
 
 #: contacts translated at a time, at least, on an accelerator (a GPU idles on a few hundred)
@@ -54,7 +54,9 @@ def _check(config: TranslateConfig, base_dir: Path) -> None:
     if config.translator is None:
         return
     try:
-        translator_class(config.translator).parse_config(config.translator_config)
+        translator_class(config.translator).parse_config(
+            recipe_translator_config(config.translator, config.translator_config, base_dir)
+        )
     except TactileBenchError as exc:
         raise TactileBenchError(f"translator: {exc}") from None
 
@@ -65,14 +67,19 @@ def _translator(ctx: StageContext) -> Any:
     if fitted is None:
         if config.translator is None:
             raise TactileBenchError(f"stage {ctx.name}: name a translator or connect a fitted one")
-        return create_translator(config.translator, config.translator_config)
+        settings = recipe_translator_config(
+            config.translator, config.translator_config, ctx.recipe_dir
+        )
+        return create_translator(config.translator, settings)
     if config.translator not in (None, fitted.name):
         raise TactileBenchError(
             f"stage {ctx.name}: config names {config.translator!r} but the fitted translator "
             f"is {fitted.name!r}"
         )
     if config.translator_config:
-        settings = fitted.config.model_dump() | config.translator_config
+        settings = fitted.config.model_dump() | recipe_translator_config(
+            fitted.name, config.translator_config, ctx.recipe_dir
+        )
         fitted.config = fitted.parse_config(settings)
     return fitted
 
@@ -80,6 +87,12 @@ def _translator(ctx: StageContext) -> Any:
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: TranslateConfig = ctx.config
     data = ctx.input("data")
+    missing = [name for name in config.sets if name not in data.outputs]
+    if missing:
+        raise TactileBenchError(
+            f"stage {ctx.name}: sets: data stage {data.name!r} ({data.kind}) has no "
+            f"{', '.join(missing)} set; list only sets it has"
+        )
     device = compute_device(ctx.trainer.get("accelerator"))
     translator = _translator(ctx).to(device)
     generator = torch.Generator().manual_seed(ctx.seed)
