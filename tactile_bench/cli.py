@@ -36,6 +36,7 @@ EXIT_USER_ERROR = 2
 # level: ``--help`` answers in a fraction of a second (tests/test_cli_startup.py).
 COMMAND_MODULES: tuple[str, ...] = (
     "tactile_bench.diagnose.commands",
+    "tactile_bench.calibrate.commands",
     "tactile_bench.read.commands",
     "tactile_bench.check",
     "tactile_bench.bench.commands",

@@ -71,6 +71,7 @@ ARG_RULES: dict[str, Rule] = {
 #: its recipe, so the runner checks and locks it (``pipeline.runner``).
 OUTPUTS: dict[tuple[str, str], Output] = {
     ("diagnose", "out"): Output(folder=True),
+    ("calibrate", "out"): Output(folder=True),
     ("export-pairs", "out"): Output(folder=True),
     ("data ycb-slide", "out"): Output(folder=True),
     ("render", "out"): Output(folder=False, suffixes=(".png",)),
@@ -85,6 +86,7 @@ OUTPUTS: dict[tuple[str, str], Output] = {
 #: each command's input arguments an output folder must not hold (or be)
 INPUTS: dict[str, tuple[str, ...]] = {
     "diagnose": ("paired_dir",),
+    "calibrate": ("paired_dir",),
     "export-pairs": ("source",),
     "bench": ("diffusion", "braille"),
 }

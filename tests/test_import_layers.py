@@ -38,7 +38,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("training",),
     ("translators",),
     ("classify",),
-    ("diagnose", "report"),
+    ("diagnose", "report", "calibrate"),
     # the application: commands, recipes, benchmarks, the checks every command goes through
     (
         "pipeline",
@@ -49,6 +49,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
         "check",
         "diagnose.commands",
         "diagnose.validate",
+        "calibrate.commands",
     ),
     ("cli", "cli_args", "__main__"),
 )
