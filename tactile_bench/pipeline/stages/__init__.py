@@ -2,6 +2,7 @@
 
 from tactile_bench.pipeline.stages import (
     braille_data,
+    calibrate,
     classify,
     compare_translators,
     diagnose,
@@ -9,6 +10,7 @@ from tactile_bench.pipeline.stages import (
     fit_translator,
     paired_data,
     report,
+    sensor_report,
     translate,
     ycb_slide_data,
 )
@@ -20,12 +22,14 @@ STAGES: dict[str, StageKind] = {
         braille_data.STAGE,
         ycb_slide_data.STAGE,
         paired_data.STAGE,
+        calibrate.STAGE,
         fit_translator.STAGE,
         translate.STAGE,
         classify.STAGE,
         compare_translators.STAGE,
         effect_ablation.STAGE,
         report.STAGE,
+        sensor_report.STAGE,
         diagnose.STAGE,
     )
 }

@@ -6,6 +6,10 @@ YCB-Slide release (``real/<object>/dataset_<k>``, depth rendered here, the relea
 Tactile-Diffusion's processed copy (``dataset/<object>/dataset_<k>/{frames,frames_depth}``,
 its own split and backgrounds; ``data.ycb_processed``; a log without its split file gets
 one drawn from the stage's seed, written under ``splits/`` in the stage folder).
+
+The stand-in's "real" side is ``real_sensor``, or, with the ``sensor`` input connected, the
+profile a ``calibrate`` stage fitted to a user's own sensor, over that sensor's gel view: a
+corpus to pretrain a translator for a sensor this project has no profile of.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from tactile_bench.pipeline.stages.base import (
 )
 from tactile_bench.report.figures import sample_grid_png
 from tactile_bench.sensor.depth import GelSpec
+from tactile_bench.sensor.surrogate import SurrogateDigit
 
 log = logging.getLogger("tactile_bench")
 
@@ -122,13 +127,14 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
         }
         manifest = write_corpus(pairs, ctx.directory)
     else:
+        surrogate, gel = _standin_sensor(ctx)
         manifest = build_ycb_slide_standin(
             ctx.directory,
             config=StandinConfig(
                 n_pairs=config.n_pairs, seed=ctx.seed, objects=tuple(config.objects)
             ),
-            gel=GelSpec(size=config.image_size),
-            real_sensor=real_sensor(config.real_sensor, ctx.recipe_dir),
+            gel=gel,
+            real_sensor=surrogate,
             progress=ctx.progress,
         )
     _preview(ctx.directory)
@@ -154,6 +160,22 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     return outputs, counts
 
 
+def _standin_sensor(ctx: StageContext) -> tuple[SurrogateDigit, GelSpec]:
+    """The stand-in's "real" sensor and gel view: a calibrate stage's profile over its own
+    view when ``sensor`` is connected, else ``real_sensor`` over the DIGIT's view."""
+    config: YcbSlideConfig = ctx.config
+    calibrated = ctx.optional_input("sensor")
+    if calibrated is None:
+        return real_sensor(config.real_sensor, ctx.recipe_dir), GelSpec(size=config.image_size)
+    if "profile" not in calibrated.outputs:
+        raise TactileBenchError(
+            f"stage {ctx.name}: sensor: {calibrated.name!r} ({calibrated.kind}) wrote no "
+            "profile; connect a calibrate stage"
+        )
+    surrogate = SurrogateDigit.from_profile(calibrated.path("profile"))
+    return surrogate, surrogate.gel(config.image_size)
+
+
 def _preview(root: Path, per_object: int = 1) -> None:
     """depth | sim | real for the middle frame of one test recording of each object."""
     pairs = load_pairs(root, "all")
@@ -175,5 +197,6 @@ STAGE = StageKind(
     description="build the YCB-Slide stand-in pretraining corpus (split by trajectory)",
     config_model=YcbSlideConfig,
     run=_run,
+    input_slots={"sensor": False},
     check=_check,
 )
