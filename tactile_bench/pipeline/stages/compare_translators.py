@@ -37,6 +37,13 @@ def _picks(labels: torch.Tensor, k: int) -> list[int]:
     return (first + rest)[:k]
 
 
+def _subset_size(n: int) -> int:
+    """KID's subset size: 100 (torchmetrics' default), at most half the test set, so that
+    on a small set (a sensor's held-out presses) the subsets differ and the std means
+    something (every subset of a 24-pair set at 100 was the whole set: std 0)."""
+    return max(2, min(100, n // 2))
+
+
 def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
     config: CompareConfig = ctx.config
     data = ctx.input("data")
@@ -68,7 +75,9 @@ def _run(ctx: StageContext) -> tuple[dict[str, str], dict[str, Any]]:
             }
         )
         images = torch.from_numpy(load_npz(result.path("test"), ("images",))["images"])
-        rows[-1]["kid"], rows[-1]["kid_std"] = kid(encoder.features(images.float()), real_features)
+        rows[-1]["kid"], rows[-1]["kid_std"] = kid(
+            encoder.features(images.float()), real_features, subset_size=_subset_size(len(test))
+        )
         title = name if name not in columns else f"{name}\n{result.name}"
         columns[title] = images[picks]
     sample_grid_png(
