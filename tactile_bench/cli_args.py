@@ -53,6 +53,7 @@ ARG_RULES: dict[str, Rule] = {
     "repeats": Count(1, 10_000),
     "ddpm_images": Count(1),
     "fit_fraction": Real(0.0, 1.0),
+    "holdout": Real(0.0, 1.0, closed_low=True),  # calibrate: 0 fits on every pair
     "press_mm": Real(0.0, 3.0, closed_high=True, unit="mm (the gel is about 2 mm thick)"),
     "step_mm": Real(0.0, 24.0, closed_high=True, unit="mm"),
     "pitch_mm": Real(0.0, 24.0, closed_high=True, unit="mm"),

@@ -12,6 +12,7 @@ import lightning as L
 import pytest
 import torch
 
+from tactile_bench.sensor.surrogate import PROFILE_DIR
 from tactile_bench.testing import TranslatorContract, tiny_pairs
 from tactile_bench.translators import create_translator, registry
 
@@ -98,18 +99,21 @@ class TestLightingAugContract(TranslatorContract):
 CONTRACTS = {c.name: c for c in (TestDiffusionContract, TestCGANContract, TestLightingAugContract)}
 COVERED_IN_TEST_TRANSLATORS = {"sim"}
 COVERED_IN_TEST_CALIBRATED = {"calibrated"}  # tests/test_calibrated.py
+COVERED_IN_TEST_PAIRED_DATA = {"profile"}  # tests/test_paired_data_stage.py (TestProfileContract)
+#: translators that need a config key to exist at all: their tiny configs
+REQUIRED_CONFIG = {"profile": {"profile": str(PROFILE_DIR / "digit.yaml")}}
 
 
 def test_every_builtin_translator_has_a_contract() -> None:
     builtins = {n for n, e in registry.discover().items() if e.distribution == "tactile_bench"}
-    covered = COVERED_IN_TEST_TRANSLATORS | COVERED_IN_TEST_CALIBRATED
+    covered = COVERED_IN_TEST_TRANSLATORS | COVERED_IN_TEST_CALIBRATED | COVERED_IN_TEST_PAIRED_DATA
     assert builtins - set(CONTRACTS) - covered == set()
 
 
 @pytest.mark.parametrize("name", sorted(registry.discover()))
 def test_every_registered_translator_translates_unfitted(name: str) -> None:
     """Any registered translator, built-in or plugin: default config, no fit, valid images."""
-    config = CONTRACTS[name].tiny_config if name in CONTRACTS else None
+    config = CONTRACTS[name].tiny_config if name in CONTRACTS else REQUIRED_CONFIG.get(name)
     translator = create_translator(name, config)
     depth, _ = tiny_pairs(n=2, size=32, seed=7)
     image = translator.translate(depth, torch.full((3, 32, 32), 110.0), torch.Generator())

@@ -53,20 +53,24 @@ class Seed:
 
 @dataclass(frozen=True)
 class Real:
-    """A finite number in ``low < x < high`` (``closed_high``: ``x <= high``)."""
+    """A finite number in ``low < x < high`` (``closed_high``: ``x <= high``; ``closed_low``:
+    ``low <= x``)."""
 
     low: float
     high: float
     closed_high: bool = False
     unit: str = ""
+    closed_low: bool = False
 
     def __call__(self, dest: str, value: object) -> None:
         x = float(value)  # type: ignore[arg-type]
         above = x > self.high if self.closed_high else x >= self.high
-        if not math.isfinite(x) or x <= self.low or above:
+        below = x < self.low if self.closed_low else x <= self.low
+        if not math.isfinite(x) or below or above:
             bracket = "]" if self.closed_high else ")"
+            opening = "[" if self.closed_low else "("
             raise TactileBenchError(
-                f"{flag(dest)}: must be in ({self.low:g}, {self.high:g}{bracket}"
+                f"{flag(dest)}: must be in {opening}{self.low:g}, {self.high:g}{bracket}"
                 f"{' ' + self.unit if self.unit else ''}, got {value}"
             )
 

@@ -28,7 +28,9 @@ METRICS = (("mse", "MSE", 2), ("ssim", "SSIM", 4), ("contact_mse", "contact MSE"
 class SensorReportConfig(StageConfig):
     """The report's title and the sentence under it."""
 
-    title: str = Field(default="Your sensor: calibration, gap and translators")
+    title: str = Field(
+        default="Your sensor: calibration, gap and translators", description="heading of the report"
+    )
     description: str = Field(default="", description="a sentence under the heading")
 
 
