@@ -12,11 +12,8 @@ import logging
 import math
 import os
 import re
-import shutil
-import tempfile
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +24,7 @@ from tactile_bench.calibrate.profiles import score_heldout, write_fitted_profile
 from tactile_bench.diagnose.paired import DiagnosisPairs, data_hash
 from tactile_bench.diagnose.run import stratified_split
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.io import atomic_folder
 from tactile_bench.sensor.surrogate import SurrogateDigit
 
 log = logging.getLogger("tactile_bench")
@@ -98,26 +96,6 @@ def profile_name(what: str) -> str:
 
 
 # ----------------------------------------------------------------------------- output
-@contextmanager
-def staged_folder(out: Path) -> Iterator[Path]:
-    """A temporary folder next to ``out``, renamed to ``out`` when the block succeeds (an
-    existing ``out`` replaced); removed, with ``out`` untouched, when it fails."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    try:
-        yield tmp
-        if out.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
-            os.replace(out, old / out.name)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-
-
 def calibrate_pairs(
     data: DiagnosisPairs,
     out_dir: str | os.PathLike,
@@ -147,7 +125,7 @@ def calibrate_pairs(
     timing = {"split": split_s, **fitted.timing_s}
     name = profile_name(what)
     result = summary(data, fitted, holdout, seed, name, out, source, data_hash(data))
-    with staged_folder(out) as tmp:
+    with atomic_folder(out) as tmp:
         path = write_fitted_profile(tmp / PROFILE_FILE, fitted, name, what)
         if len(held_idx):
             t = time.perf_counter()

@@ -32,8 +32,6 @@ import json
 import logging
 import math
 import os
-import shutil
-import tempfile
 import unicodedata
 import zlib
 from collections.abc import Sequence
@@ -55,6 +53,7 @@ from tactile_bench.errors import TactileBenchError
 from tactile_bench.guard.args import BYTES_PER_PAIR_PIXEL, MAX_SIZE, MIN_SIZE
 from tactile_bench.guard.images import MIN_SIDE, open_header
 from tactile_bench.guard.limits import check_memory
+from tactile_bench.io import atomic_folder
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.press_grounding import sim_render
 
@@ -475,9 +474,7 @@ def write_paired(root: str | os.PathLike, data: DiagnosisPairs, overwrite: bool 
         if (label, name) in keys:
             raise TactileBenchError(f"{root}: pair {label!r}/{name!r} appears twice")
         keys.add((label, name))
-    root.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".tmp", dir=root.parent))
-    try:
+    with atomic_folder(root) as tmp:
         depth_um = (data.depth[:, 0] * UM_PER_MM).round().clamp(0, 65535).numpy()
         depth_um = depth_um.astype(np.uint16)
         for i, (label, name) in enumerate(zip(data.labels, data.names, strict=True)):
@@ -493,16 +490,6 @@ def write_paired(root: str | os.PathLike, data: DiagnosisPairs, overwrite: bool 
         if tuple(data.gel_mm) != DIGIT_GEL_MM:
             gel = {"width_mm": float(data.gel_mm[0]), "height_mm": float(data.gel_mm[1])}
             (tmp / GEL_FILE).write_text(json.dumps(gel) + "\n")
-        if root.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".old", dir=root.parent))
-            os.replace(root, old / root.name)
-            os.replace(tmp, root)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, root)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     return root
 
 
