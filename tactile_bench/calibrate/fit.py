@@ -11,10 +11,12 @@
 2. **selection**: the diagnosis's "which" step (``diagnose.which.explain_gap``) on the fit
    half alone, with its own inner fit / held-out split; the selected effects keep their
    fitted parameters (``diagnose.run.selected_effects``);
-3. **lookup**: the optical response (F, 3, 6) fitted by least squares on every fit pair,
+3. **geometry**: the selected (and unselected) deterministic gel geometry refitted for the
+   contact region by cross-validation on the fit pairs (``geometry.refit_geometry``);
+4. **lookup**: the optical response (F, 3, 6) fitted by least squares on every fit pair,
    on the gel surface the profile itself renders (the selected deterministic geometry at
    twice the size, area-averaged back), and the LED azimuths from its first harmonic;
-4. **noise**: camera noise as the selection fitted it, else as ``press_grounding.
+5. **noise**: camera noise as the selection fitted it, else as ``press_grounding.
    frame_noise`` measures it on the fit frames (read noise only).
 
 ``profile_effects`` maps the selection onto profile effects: every parameter the candidate
@@ -37,15 +39,14 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
+from tactile_bench.calibrate.geometry import profile_surface, refit_geometry
 from tactile_bench.diagnose.candidates import get_candidate
 from tactile_bench.diagnose.noise import contact_free
 from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.run import selected_effects, stratified_split
-from tactile_bench.diagnose.scene import OVERSAMPLE
 from tactile_bench.diagnose.which import explain_gap
-from tactile_bench.effects import EFFECT_ORDER, EFFECTS, EffectContext
+from tactile_bench.effects import EFFECT_ORDER, EFFECTS
 from tactile_bench.effects.sensors import SensorFit
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.press_grounding import frame_noise, led_azimuths
@@ -80,6 +81,7 @@ class ProfileFit:
     background: dict[str, Any]  # K chosen, the MSE of every K tried
     noise: dict[str, Any]  # the camera noise used and where it came from
     selection: dict[str, Any]  # the inner split and what the selection left
+    geometry: dict[str, Any]  # the contact-region refit of the gel geometry (geometry.py)
     timing_s: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -213,21 +215,6 @@ def profile_effects(
     return {n: effects[n] for n in EFFECT_ORDER if n in effects}, dropped
 
 
-def profile_surface(
-    depth: torch.Tensor, effects: Mapping[str, Mapping[str, float]], gel_mm: tuple[float, float]
-) -> torch.Tensor:
-    """The gel surface (N, 1, S, S) the profile renders the response on: ``depth`` (N, 1,
-    S, S) at twice the size (bilinear, as the diagnosis oversamples), its deterministic
-    geometry effects applied there, the positive part area-averaged back to S."""
-    ctx = EffectContext(gel_mm[0], gel_mm[1], False)
-    height = F.interpolate(depth.float(), scale_factor=OVERSAMPLE, mode="bilinear")
-    for name in [n for n in EFFECT_ORDER if n in effects]:
-        effect = EFFECTS[name]
-        if effect.acts_on == "geometry" and not effect.stochastic:
-            height = effect.apply(height, effect.validate(effects[name]), None, ctx)
-    return F.avg_pool2d(height.clamp(min=0.0), OVERSAMPLE)
-
-
 def fit_lookup(
     fit: DiagnosisPairs, effects: Mapping[str, Mapping[str, float]], what: str
 ) -> np.ndarray:
@@ -323,6 +310,16 @@ def fit_sensor_profile(
 
     t = time.perf_counter()
     effects, dropped = profile_effects(selected)
+    effects, geometry = refit_geometry(fit, effects)
+    secs = _timed(timing, "geometry", t)
+    log.info(
+        "geometry: contact CV MSE %.1f -> %.1f (%.1f s)",
+        geometry["cv_contact_mse_before"],
+        geometry["cv_contact_mse_after"],
+        secs,
+    )
+
+    t = time.perf_counter()
     weights = fit_lookup(fit, effects, what)
     noise, noise_info = camera_noise(fit, selected)
     if noise is not None:
@@ -344,4 +341,6 @@ def fit_sensor_profile(
         secs,
     )
     selected = {k: dict(v) for k, v in selected.items()}
-    return ProfileFit(effects, sensor, selected, dropped, bg_info, noise_info, selection, timing)
+    return ProfileFit(
+        effects, sensor, selected, dropped, bg_info, noise_info, selection, geometry, timing
+    )

@@ -43,6 +43,7 @@ def summary(
         "selected": fitted.selected,
         "selection": fitted.selection,
         "dropped": fitted.dropped,
+        "geometry": fitted.geometry,
         "background_k": fitted.background["k"],
         "background": fitted.background,
         "noise": fitted.noise,
@@ -76,6 +77,12 @@ def _fitted_lines(r: Mapping[str, Any]) -> list[str]:
         f"{sel['n_heldout']} split of the fit pairs: {'; '.join(chosen)}.",
     ]
     lines += [f"- Not carried into the profile: `{k}`: {why}." for k, why in r["dropped"].items()]
+    geo = r["geometry"]
+    lines.append(
+        f"- **Gel geometry** refitted for the contact region ({geo['folds']}-fold CV on the "
+        f"fit pairs): contact MSE {geo['cv_contact_mse_before']:.1f} -> "
+        f"{geo['cv_contact_mse_after']:.1f}; the profile's effects are listed in profile.yaml."
+    )
     read = noise.get("read_noise", 0.0)
     noise_text = f"read noise {read:g} grey levels" if read else "none"
     azimuths = ", ".join(f"{a:g}" for a in r["led_azimuth_deg"])

@@ -63,12 +63,36 @@ def fit_response(
         y = delta[k : k + chunk].permute(0, 2, 3, 1).reshape(-1, 3).float()
         xtx += (x.T @ x).double()
         xty += (x.T @ y).double()
+    return solve_response(xtx, xty, ridge)
+
+
+def solve_response(xtx: torch.Tensor, xty: torch.Tensor, ridge: float = RIDGE) -> np.ndarray:
+    """Weights (F, 3, 6) from summed normal equations ``xtx`` (C, C) and ``xty`` (C, 3): the
+    ridge-regularised solve ``fit_response`` ends with, for callers that sum them their way."""
     if not bool(torch.diagonal(xtx).gt(0).any()):
         raise ValueError("fit_response: no pixel has a contact or a slope to fit on")
+    n_cols = xtx.shape[0]
     lam = ridge * float(torch.diagonal(xtx).mean())
     w = torch.linalg.solve(xtx + lam * torch.eye(n_cols, dtype=xtx.dtype, device=xtx.device), xty)
     n_feat = w.shape[0] // 6
     return w.reshape(n_feat, 6, 3).permute(0, 2, 1).cpu().numpy()  # (F, 3, 6)
+
+
+def pair_normal_equations(
+    surface: torch.Tensor, delta: torch.Tensor, gel_mm: tuple[float, float], chunk: int = 4
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each pair's normal equations, (N, C, C) and (N, C, 3) in float64, as ``fit_response``
+    sums them: a cross-validation fits every fold from one pass (the sum over the pairs
+    it trains on) instead of rebuilding the design once per fold."""
+    if surface.shape[0] != delta.shape[0] or surface.shape[-2:] != delta.shape[-2:]:
+        raise ValueError(f"surface {tuple(surface.shape)} and delta {tuple(delta.shape)} differ")
+    xtx, xty = [], []
+    for k in range(0, surface.shape[0], chunk):
+        x = response_design(surface[k : k + chunk], gel_mm).flatten(1, 2)  # (n, H*W, C)
+        y = delta[k : k + chunk].permute(0, 2, 3, 1).flatten(1, 2).float()  # (n, H*W, 3)
+        xtx.append((x.transpose(1, 2) @ x).double())
+        xty.append((x.transpose(1, 2) @ y).double())
+    return torch.cat(xtx), torch.cat(xty)
 
 
 def predict_delta(
