@@ -39,6 +39,26 @@ def _cmd_bench(ns: argparse.Namespace) -> int:
     return 0
 
 
+class _Only(argparse.Action):
+    """``--only``: the sections; ``--only diagnosis`` alone also keeps the environment's
+    OpenMP wait policy, as ``diagnose`` does (``diagnose.commands.KEEP_OMP_WAIT_POLICY``),
+    so that the figures are those of the command. With other sections the bench's
+    ``PASSIVE`` stays (bench.md names the policy the diagnosis ran under)."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        from tactile_bench.diagnose.commands import KEEP_OMP_WAIT_POLICY
+
+        setattr(namespace, self.dest, values)
+        if values and set(values) == {"diagnosis"}:
+            namespace.omp_wait_policy = KEEP_OMP_WAIT_POLICY
+
+
 def register(subparsers: Any) -> None:
     """Add ``bench`` to the CLI."""
     p = subparsers.add_parser(
@@ -68,9 +88,12 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--only",
         nargs="*",
+        action=_Only,
         metavar="SECTION",
-        help="startup, simulation, sampling, threads, training, seeds, scaling, jpeg, device "
-        "(default: all but device; the simulation's 1x/2x/4x rows come with simulation)",
+        help="startup, simulation, sampling, threads, training, seeds, scaling, jpeg, device, "
+        "diagnosis (default: all but device and diagnosis; the simulation's 1x/2x/4x rows "
+        "come with simulation; diagnosis: the gap diagnosis of 300 fresh pairs, 60 with "
+        "--quick, timed span by span)",
     )
     p.add_argument(
         "--device",

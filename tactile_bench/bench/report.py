@@ -557,4 +557,8 @@ def render_markdown(r: dict[str, Any]) -> str:
         lines += _jpeg(r)
     if "device" in r:
         lines += device_markdown(r["device"])
+    if "diagnosis" in r:
+        from tactile_bench.bench.diagnosis import diagnosis_markdown  # loads the diagnosis
+
+        lines += diagnosis_markdown(r["diagnosis"])
     return "\n".join(lines).rstrip() + "\n"

@@ -3,7 +3,8 @@
 One run measures, side by side: contact simulation, diffusion sampling (every sampler and
 step count against the paper's 500-step DDPM, on the same network and contacts), training
 throughput (fp32 / bf16 / channels_last), cost at 1x / 2x / 4x the work, peak memory, and
-our differentiable JPEG against kornia's with libjpeg the reference.
+our differentiable JPEG against kornia's with libjpeg the reference. Asked for by name
+(``--only``): the sections on another device, and the gap diagnosis at its defaults.
 The machine is shared and noisy, so headline figures are ratios of measurements taken in
 the same run; medians of several repetitions after a warm-up (see ``bench.timing``).
 """
@@ -28,7 +29,7 @@ from typing import Any
 import torch
 
 from tactile_bench import allocator
-from tactile_bench.bench import jpeg, sampling, simulation, startup, training
+from tactile_bench.bench import diagnosis, jpeg, sampling, simulation, startup, training
 from tactile_bench.bench.device import DeviceBenchSizes, check_device, device_rows
 from tactile_bench.bench.report import render_markdown
 from tactile_bench.bench.threads import thread_settings
@@ -54,8 +55,9 @@ SECTIONS = (
     "scaling",
     "jpeg",
 )
-#: sections run only when asked for (``--only``, or ``--device`` other than the CPU)
-OPTIONAL_SECTIONS = ("device",)
+#: sections run only when asked for (``--only``, or ``--device`` other than the CPU); the
+#: diagnosis takes minutes at its default 300 pairs
+OPTIONAL_SECTIONS = ("device", "diagnosis")
 # inference settings the bench applies to a loaded checkpoint: the shipped defaults
 INFERENCE_KEYS = ("sampler", "steps", "sample_batch_size", "precision", "channels_last")
 # what the default sampler must reach (issue 8): vs DDPM-500 measured in the same run
@@ -95,6 +97,10 @@ class BenchConfig:
     jpeg_images: int = 32
     jpeg_native_images: int = 8
     jpeg_qualities: tuple[int, ...] = jpeg.QUALITIES
+    diagnosis_pairs: int = 300
+    diagnosis_size: int = 64
+    diagnosis_candidates: tuple[str, ...] | None = None  # None: diagnose's default, all
+    diagnosis_downstream: bool = True
 
     @classmethod
     def full(cls, **kw: Any) -> BenchConfig:
@@ -124,6 +130,7 @@ class BenchConfig:
             fit_steps=40,
             jpeg_images=16,
             jpeg_native_images=4,
+            diagnosis_pairs=60,
         )
         values.update(kw)
         return cls(**values)
@@ -321,6 +328,8 @@ def run_bench(
                     cfg.seed,
                 ),
             )
+        if "diagnosis" in sections:
+            result["diagnosis"] = _diagnosis_section(step, cfg, progress)
     result["loadavg_end"] = _loadavg()
     result["wall_s"] = round(time.perf_counter() - started, 1)
     out = Path(out_dir)
@@ -368,6 +377,21 @@ def _simulation_section(step: _Step, cfg: BenchConfig) -> dict[str, Any]:
         "braille": braille_sim,
         "objects": objects_sim,
     }
+
+
+def _diagnosis_section(step: _Step, cfg: BenchConfig, progress: bool) -> dict[str, Any]:
+    """The gap diagnosis of ``cfg.diagnosis_pairs`` fresh pairs, as ``diagnose`` runs it."""
+    return step(
+        f"gap diagnosis of {cfg.diagnosis_pairs} pairs",
+        lambda: diagnosis.diagnosis_row(
+            cfg.diagnosis_pairs,
+            cfg.diagnosis_size,
+            cfg.seed,
+            cfg.diagnosis_candidates,
+            cfg.diagnosis_downstream,
+            progress,
+        ),
+    )
 
 
 def _model_sections(

@@ -202,6 +202,11 @@ def _cmd_diagnose(ns: argparse.Namespace) -> int:
         source={"root": str(Path(base).resolve()), "layout": layout},
     )
     print("\n".join(summary_lines(report)))
+    if ns.timing:
+        from tactile_bench.diagnose.breakdown import breakdown_lines
+
+        print("where the time went (seconds exclude the spans inside; most first):")
+        print("\n".join(breakdown_lines(report.timing_s["breakdown"])))
     out = Path(ns.out)
     print(f"wrote {out / 'report.json'} and {out / 'report.html'}")
     return 0
@@ -231,6 +236,31 @@ def find_braille_set(source: str | Path, set_name: str) -> tuple[Path, tuple[str
 
 
 def _generate(ns: argparse.Namespace, chars: tuple[str, ...]) -> Any:
+    return generate_pairs(
+        ns.generate,
+        chars,
+        profile=ns.profile,
+        size=ns.size,
+        seed=ns.seed,
+        protocol=ns.protocol,
+        noise_free_sim=ns.noise_free_sim,
+        progress=not ns.no_progress,
+    )
+
+
+def generate_pairs(
+    n: int,
+    chars: tuple[str, ...],
+    profile: str = "digit",
+    size: int = 64,
+    seed: int = 0,
+    protocol: str = "classifier",
+    noise_free_sim: bool = False,
+    progress: bool = False,
+) -> Any:
+    """``n`` fresh braille pairs of ``chars`` as ``export-pairs --generate N`` renders them
+    (a ``data.braille.BrailleSet``: sim, and the surrogate ``profile`` playing real), drawn
+    from the ``protocol``'s contact grid, seeded."""
     import torch
     from tqdm.auto import tqdm
 
@@ -244,24 +274,26 @@ def _generate(ns: argparse.Namespace, chars: tuple[str, ...]) -> Any:
     from tactile_bench.sensor.optics import SimOptics
     from tactile_bench.sensor.surrogate import SurrogateDigit
 
-    real = SurrogateDigit.from_profile(ns.profile)
-    gel = GelSpec(size=ns.size)
+    real = SurrogateDigit.from_profile(profile)
+    gel = GelSpec(size=size)
     protocols = {"classifier": classifier_protocol, "finetune": finetune_test_protocol}
-    grid = protocols[ns.protocol](chars)
-    (idx,) = draw_disjoint(grid.labels, (ns.generate,), len(chars), ns.seed)
+    if protocol not in protocols:
+        raise TactileBenchError(f"protocol: {protocol!r} is not one of {', '.join(protocols)}")
+    grid = protocols[protocol](chars)
+    (idx,) = draw_disjoint(grid.labels, (n,), len(chars), seed)
     bank = build_bank(chars, BrailleSpec())
-    optics = SimOptics(noise_std=0.0) if ns.noise_free_sim else SimOptics()
-    with tqdm(total=len(idx), desc="render pairs", unit="pair", disable=ns.no_progress) as bar:
+    optics = SimOptics(noise_std=0.0) if noise_free_sim else SimOptics()
+    with tqdm(total=len(idx), desc="render pairs", unit="pair", disable=not progress) as bar:
         return render_braille_set(
             bank,
             grid.index(idx),
             gel,
             optics,
-            to_uint8(sim_background(ns.size)),
+            to_uint8(sim_background(size)),
             real,
             to_uint8(real.background(gel.size)),
-            torch.Generator().manual_seed(ns.seed),
-            torch.Generator().manual_seed(ns.seed + 1),
+            torch.Generator().manual_seed(seed),
+            torch.Generator().manual_seed(seed + 1),
             bar=bar,
         )
 
@@ -360,6 +392,12 @@ def _add_diagnose(subparsers: Any) -> None:
         metavar="S",
         help="resize every frame to S x S (default: min(64, shortest side), the size the "
         "diagnosis is validated at; the Tactile-Diffusion layout: 64)",
+    )
+    diag.add_argument(
+        "--timing",
+        action="store_true",
+        help="also print where the time went: calls and seconds of every timed span "
+        "(always in report.json's timing_s.breakdown)",
     )
     diag.add_argument("--no-progress", action="store_true")
     diag.set_defaults(func=_cmd_diagnose, omp_wait_policy=KEEP_OMP_WAIT_POLICY)

@@ -26,11 +26,13 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from tactile_bench.diagnose.breakdown import GAP
 from tactile_bench.diagnose.candidates import CANDIDATES, Candidate, Searched, get_candidate
 from tactile_bench.diagnose.scene import PairScene
 from tactile_bench.diagnose.simulate import bake_fixed, render
 from tactile_bench.effects.base import ParamValue
 from tactile_bench.effects.kernels import gaussian_blur
+from tactile_bench.sensor.timing import timed_span
 
 GAP_METRIC = (
     "structure + texture, grey level^2 (0..255): MSE of the images low-passed to ~1 px "
@@ -105,16 +107,17 @@ class Target:
 
 def pair_gap(draws: list[torch.Tensor], target: Target) -> torch.Tensor:
     """Gap (N,) of each pair: one draw for a deterministic sim', two for a stochastic one."""
-    feats = [gap_features(d) for d in draws]
-    if len(draws) == 1:
-        structure = (feats[0][0] - target.low).square().mean((1, 2, 3))
-    else:
-        structure = ((feats[0][0] - target.low) * (feats[1][0] - target.low)).mean((1, 2, 3))
-    texture = torch.zeros_like(structure)
-    for k, rms_real in enumerate(target.rms):
-        rms = sum(f[1][k] for f in feats) / len(feats)
-        texture = texture + (rms - rms_real).square().sum(0).mean((1, 2, 3))
-    return structure + texture
+    with timed_span(GAP):
+        feats = [gap_features(d) for d in draws]
+        if len(draws) == 1:
+            structure = (feats[0][0] - target.low).square().mean((1, 2, 3))
+        else:
+            structure = ((feats[0][0] - target.low) * (feats[1][0] - target.low)).mean((1, 2, 3))
+        texture = torch.zeros_like(structure)
+        for k, rms_real in enumerate(target.rms):
+            rms = sum(f[1][k] for f in feats) / len(feats)
+            texture = texture + (rms - rms_real).square().sum(0).mean((1, 2, 3))
+        return structure + texture
 
 
 def rounding_gap(target: Target, seed: int = 0) -> float:

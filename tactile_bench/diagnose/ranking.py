@@ -11,11 +11,13 @@ from typing import Any
 import torch
 
 from tactile_bench.diagnose.bootstrap import BOOTSTRAP, interval95, resampled
+from tactile_bench.diagnose.breakdown import BOOTSTRAP as BOOTSTRAP_SPAN
 from tactile_bench.diagnose.candidates import get_candidate
 from tactile_bench.diagnose.gapfit import PostDraw, Target, model_gap
 from tactile_bench.diagnose.no_contact import FrameCheck, FrameReading
 from tactile_bench.diagnose.scene import PairScene
 from tactile_bench.diagnose.simulate import render
+from tactile_bench.sensor.timing import timed_span
 
 #: an option removing this share of what is left is a rival explanation across the lens /
 #: gel line when the no-contact frame cannot read the lens
@@ -73,9 +75,10 @@ def shrink_ci(
     before: torch.Tensor, after: torch.Tensor, seed: int = 0, n: int = BOOTSTRAP
 ) -> tuple[float, float]:
     """Bootstrap 95% CI of ``1 - sum(after) / sum(before)`` over resampled pairs."""
-    idx = resampled(len(before), seed, n)
-    shrink = 1 - after[idx].sum(1) / before[idx].sum(1).clamp(min=1e-12)
-    return interval95(shrink)
+    with timed_span(BOOTSTRAP_SPAN):
+        idx = resampled(len(before), seed, n)
+        shrink = 1 - after[idx].sum(1) / before[idx].sum(1).clamp(min=1e-12)
+        return interval95(shrink)
 
 
 def paired_difference_ci(
@@ -83,9 +86,10 @@ def paired_difference_ci(
 ) -> tuple[float, float]:
     """Bootstrap 95% CI of ``(sum(b) - sum(a)) / sum(before)`` over resampled pairs: how much
     more of the gap ``a`` removes than ``b``, on the same held-out pairs."""
-    idx = resampled(len(before), seed, n)
-    diff = (b[idx].sum(1) - a[idx].sum(1)) / before[idx].sum(1).clamp(min=1e-12)
-    return interval95(diff)
+    with timed_span(BOOTSTRAP_SPAN):
+        idx = resampled(len(before), seed, n)
+        diff = (b[idx].sum(1) - a[idx].sum(1)) / before[idx].sum(1).clamp(min=1e-12)
+        return interval95(diff)
 
 
 #: what tells apart two effects acting on these parts of image formation, when the pairs at

@@ -22,11 +22,13 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 import tactile_bench.report.figures  # noqa: F401  (selects the Agg backend)
+from tactile_bench.diagnose.breakdown import REPORT_FIGURES
 from tactile_bench.diagnose.ranking import EffectFit
 from tactile_bench.diagnose.result import Diagnosis
 from tactile_bench.diagnose.stability import warning as stability_warning
 from tactile_bench.diagnose.where import WhereResult
 from tactile_bench.io import atomic_write_json, atomic_write_text
+from tactile_bench.sensor.timing import timed_span
 
 
 def jsonable(obj: Any) -> Any:
@@ -256,6 +258,21 @@ font-size:13px;text-align:left}th{background:#f2f2f2}img{max-width:100%}
 .warn{background:#fff3cd;border:1px solid #e0c36b;padding:.6em}h2{margin-top:1.6em}"""
 
 
+def _timing_html(timing: Mapping[str, Any]) -> str:
+    """Seconds per step, then the timed spans (calls and seconds, most seconds first)."""
+    steps = {k: v for k, v in timing.items() if k != "breakdown"}
+    html_parts = ["<h2>Timing</h2>" + _table(_flatten(steps), ["measure", "value"])]
+    spans = timing.get("breakdown")
+    if isinstance(spans, Mapping) and spans:
+        rows = [{"span": name, **dict(row)} for name, row in spans.items()]
+        html_parts.append(
+            "<h3>where the time went (timed spans up to the report's writing; a span's "
+            "seconds exclude the spans inside it, inclusive seconds count them)</h3>"
+            + _table(rows, ["span", "calls", "seconds", "inclusive_seconds"])
+        )
+    return "".join(html_parts)
+
+
 def render_html(result: Diagnosis, figures: Mapping[str, str]) -> str:
     """The report page; ``figures`` maps names to base64 PNGs."""
 
@@ -326,7 +343,7 @@ def render_html(result: Diagnosis, figures: Mapping[str, str]) -> str:
         )
         parts.append(_table(after["dominant"], ["axis", "part", "share", "intensity"]))
     parts.append(img("residual_maps") + img("samples"))
-    parts.append("<h2>Timing</h2>" + _table(_flatten(result.timing_s), ["measure", "value"]))
+    parts.append(_timing_html(result.timing_s))
     body = "\n".join(parts)
     head = f'<meta charset="utf-8"><title>gap diagnosis</title><style>{_CSS}</style>'
     return f"<!doctype html><html><head>{head}</head><body>{body}</body></html>\n"
@@ -341,6 +358,19 @@ def write_report(
     """Write ``report.json`` and ``report.html`` (figures inlined) into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    with timed_span(REPORT_FIGURES):
+        figures = _report_figures(result, samples, sample_labels)
+    json_path = atomic_write_json(out / "report.json", jsonable(result.to_dict()))
+    html_path = atomic_write_text(out / "report.html", render_html(result, figures))
+    return {"json": json_path, "html": html_path}
+
+
+def _report_figures(
+    result: Diagnosis,
+    samples: Mapping[str, torch.Tensor] | None,
+    sample_labels: Sequence[str] = (),
+) -> dict[str, str]:
+    """The report's figures as base64 PNGs, by name."""
     where, held = result.where, result.where_held
     figures = {
         "error_maps": png_base64(
@@ -359,6 +389,4 @@ def write_report(
         figures["spectrum"] = png_base64(spectrum_figure([("sim", where)]))
     if samples is not None and len(sample_labels):
         figures["samples"] = png_base64(samples_figure(samples, sample_labels))
-    json_path = atomic_write_json(out / "report.json", jsonable(result.to_dict()))
-    html_path = atomic_write_text(out / "report.html", render_html(result, figures))
-    return {"json": json_path, "html": html_path}
+    return figures

@@ -60,7 +60,7 @@ class Diagnosis:
     which: WhichResult
     how_far: HowFar
     samples: list[Sample]
-    timing_s: dict[str, float] = field(default_factory=dict)
+    timing_s: dict[str, Any] = field(default_factory=dict)  # seconds; "breakdown": spans
     version: str = tactile_bench.__version__
 
     def to_dict(self) -> dict[str, Any]:

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from tactile_bench.diagnose import breakdown
+from tactile_bench.diagnose.breakdown import breakdown as span_breakdown
 from tactile_bench.diagnose.paired import DiagnosisPairs, data_hash
 from tactile_bench.diagnose.report import jsonable, write_report
 from tactile_bench.diagnose.result import Diagnosis, Sample, Split
@@ -26,6 +28,7 @@ from tactile_bench.diagnose.where import WhereResult, analyse_where
 from tactile_bench.diagnose.which import WhichResult, explain_gap
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.io import atomic_write_json
+from tactile_bench.sensor.timing import SpanTimer, timed_span
 
 log = logging.getLogger("tactile_bench")
 MIN_PAIRS = 4
@@ -156,38 +159,73 @@ def diagnose(
     """Run the diagnosis on ``data`` and write ``out_dir/report.{json,html}``.
 
     ``source`` describes the input for the report (``root``, ``layout``); the content hash
-    of the pairs is added here.
+    of the pairs is added here. ``timing_s`` holds each step's seconds and, under
+    ``breakdown``, the calls and seconds of every timed span (``diagnose.breakdown``).
     """
-    timing: dict[str, float] = {}
+    timing: dict[str, Any] = {}
     start = time.perf_counter()
+    with SpanTimer() as timer, timed_span(breakdown.DIAGNOSE):
+        result, sample_images, row_labels = _run_steps(
+            data, downstream, candidates, seed, fit_fraction, progress, source, steps, timing
+        )
+        # the HTML's timing table: every span so far (the report's own come after it)
+        timing["breakdown"] = span_breakdown(timer)
+        t = time.perf_counter()
+        with timed_span(breakdown.REPORT):
+            paths = write_report(out_dir, result, sample_images, row_labels)
+        timing["report"] = time.perf_counter() - t
+    timing["total"] = time.perf_counter() - start
+    timing["breakdown"] = span_breakdown(timer)
+    atomic_write_json(paths["json"], jsonable(result.to_dict()))  # now with the report's time
+    return result
+
+
+def _run_steps(
+    data: DiagnosisPairs,
+    downstream: bool,
+    candidates: Sequence[str] | None,
+    seed: int,
+    fit_fraction: float,
+    progress: bool,
+    source: dict[str, Any] | None,
+    steps: Steps,
+    timing: dict[str, Any],
+) -> tuple[Diagnosis, dict[str, torch.Tensor], list[str]]:
+    """Where, which, how far and the samples: the result (its ``timing_s`` is ``timing``,
+    each step's seconds added here), the before/after images and their row labels."""
     fit_idx, held_idx = stratified_split(data.labels, fit_fraction, seed)
 
     t = time.perf_counter()
-    where = analyse_where(data)
+    with timed_span(breakdown.WHERE):
+        where = analyse_where(data)
     timing["where"] = time.perf_counter() - t
     log.info("where: %.1f s; mean squared error %.2f", timing["where"], where.summary["mse"])
 
     t = time.perf_counter()
-    which = steps.explain_gap(
-        data, fit_idx, held_idx, candidates=candidates, seed=seed, progress=progress
-    )
+    with timed_span(breakdown.WHICH):
+        which = steps.explain_gap(
+            data, fit_idx, held_idx, candidates=candidates, seed=seed, progress=progress
+        )
     timing["which"] = time.perf_counter() - t
     effects = selected_effects(which)
     log.info("which: %.1f s; selected %s", timing["which"], list(effects) or "nothing")
 
     t = time.perf_counter()
-    far = steps.how_far(
-        data, fit_idx, held_idx, effects, downstream=downstream, seed=seed, progress=progress
-    )
+    with timed_span(breakdown.HOW_FAR):
+        far = steps.how_far(
+            data, fit_idx, held_idx, effects, downstream=downstream, seed=seed, progress=progress
+        )
     timing["how_far"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    held_where = None
-    if effects:
-        after = steps.apply_effects(data, effects, held_idx, seed, fit_idx)
-        held_where = _where_before_after(data.subset(held_idx), after)
-    samples_idx = pick_samples(data, held_idx, seed=seed)
-    sample_images = _sample_images(data, samples_idx, effects, seed, fit_idx, steps)
+    with timed_span(breakdown.SAMPLES):
+        held_where = None
+        if effects:
+            after = steps.apply_effects(data, effects, held_idx, seed, fit_idx)
+            with timed_span(breakdown.WHERE):
+                held_where = _where_before_after(data.subset(held_idx), after)
+        samples_idx = pick_samples(data, held_idx, seed=seed)
+        sample_images = _sample_images(data, samples_idx, effects, seed, fit_idx, steps)
     result = Diagnosis(
         n_pairs=len(data),
         size=data.size,
@@ -201,10 +239,5 @@ def diagnose(
         timing_s=timing,
     )
     timing["samples"] = time.perf_counter() - t
-    t = time.perf_counter()
     row_labels = [f"{data.labels[i] or '-'} / {data.names[i]}" for i in samples_idx]
-    paths = write_report(out_dir, result, sample_images, row_labels)
-    timing["report"] = time.perf_counter() - t
-    timing["total"] = time.perf_counter() - start
-    atomic_write_json(paths["json"], jsonable(result.to_dict()))  # now with the report's time
-    return result
+    return result, sample_images, row_labels

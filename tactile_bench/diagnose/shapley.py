@@ -23,6 +23,8 @@ from typing import Any
 import torch
 
 from tactile_bench.diagnose.bootstrap import BOOTSTRAP, interval95, resampled
+from tactile_bench.diagnose.breakdown import BOOTSTRAP as BOOTSTRAP_SPAN
+from tactile_bench.sensor.timing import timed_span
 
 #: a coalition's held-out gap per pair
 CoalitionGaps = Mapping[frozenset[str], torch.Tensor]
@@ -70,14 +72,15 @@ def shapley_shares(
     n_pairs = len(gaps[frozenset()])
     point = shapley_values(players, {c: g.double().mean() for c, g in gaps.items()})
     base = float(gaps[frozenset()].double().mean())
-    idx = resampled(n_pairs, seed, n)
-    gaps_drawn = {c: g.double()[idx].mean(1) for c, g in gaps.items()}
-    draws = shapley_values(players, gaps_drawn)
     out = []
-    for player in players:
-        share = float(point[player]) / base if base > 0 else 0.0
-        ratio = draws[player] / gaps_drawn[frozenset()].clamp(min=1e-12)
-        lo, hi = interval95(ratio)
-        # a percentile interval can miss its own estimate on degenerate data: it holds it
-        out.append(ShapleyShare(player, share, min(lo, share), max(hi, share)))
+    with timed_span(BOOTSTRAP_SPAN):
+        idx = resampled(n_pairs, seed, n)
+        gaps_drawn = {c: g.double()[idx].mean(1) for c, g in gaps.items()}
+        draws = shapley_values(players, gaps_drawn)
+        for player in players:
+            share = float(point[player]) / base if base > 0 else 0.0
+            ratio = draws[player] / gaps_drawn[frozenset()].clamp(min=1e-12)
+            lo, hi = interval95(ratio)
+            # a percentile interval can miss its own estimate on degenerate data: it holds it
+            out.append(ShapleyShare(player, share, min(lo, share), max(hi, share)))
     return out

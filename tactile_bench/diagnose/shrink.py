@@ -36,11 +36,13 @@ from typing import Any
 import torch
 
 from tactile_bench.data.pixels import image_to_foreground
+from tactile_bench.diagnose.breakdown import DOWNSTREAM, KID
 from tactile_bench.diagnose.paired import DiagnosisPairs
 from tactile_bench.diagnose.scene import fit_reference, make_scene
 from tactile_bench.diagnose.simulate import apply_effects, render_background
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.metrics import estimate_pixel_noise, fit_encoder, kid, ssim_mse
+from tactile_bench.sensor.timing import timed_span
 
 # KID only compares sets in the encoder's features: a short training keeps the before/after
 # order of a 300-pair export for half the time of a long one (docs/results/diagnosis_settings.md)
@@ -202,6 +204,14 @@ def _accuracy(
 ) -> tuple[float, dict[str, list[float]] | None]:
     """Held-out real accuracy of a classifier trained on foregrounds ``x`` (noise matched to
     the real frames'), and the noise it had and was given."""
+    with timed_span(DOWNSTREAM):
+        return _train_and_test(setup, x, seed)
+
+
+def _train_and_test(
+    setup: _Classifiers, x: torch.Tensor, seed: int
+) -> tuple[float, dict[str, list[float]] | None]:
+    """``_accuracy``'s work, in its span."""
     from tactile_bench.classify import evaluate, train_classifier
 
     noise = None
@@ -293,6 +303,24 @@ def accuracy_with_each(
     }
 
 
+def _kid_scores(
+    train: torch.Tensor, real: torch.Tensor, sim: torch.Tensor, sim_fx: torch.Tensor, seed: int
+) -> KidScores:
+    """KID of ``sim`` and ``sim_fx`` against ``real`` in the features of an encoder trained
+    on ``train`` (the fit split's real images)."""
+    encoder = fit_encoder(train, steps=ENCODER_STEPS, seed=seed)
+    f_real, f_sim, f_fx = (encoder.features(x) for x in (real, sim, sim_fx))
+    kid_before, std_before = kid(f_sim, f_real, seed=seed)
+    kid_after, std_after = kid(f_fx, f_real, seed=seed)
+    return KidScores(
+        kid_before,
+        kid_after,
+        std_before,
+        std_after,
+        f"project autoencoder, {ENCODER_STEPS} steps on the fit split's real",
+    )
+
+
 def how_far(
     data: DiagnosisPairs,
     fit_idx: torch.Tensor,
@@ -309,17 +337,8 @@ def how_far(
     sim_fx = apply_effects(data, effects, held_idx, seed, fit_idx)
     distribution: KidScores | Skipped = Skipped("fewer than 2 pairs in a split")
     if len(held_idx) >= 2 and len(fit_idx) >= 2:
-        encoder = fit_encoder(data.real[fit_idx].float(), steps=ENCODER_STEPS, seed=seed)
-        f_real, f_sim, f_fx = (encoder.features(x) for x in (real, sim, sim_fx))
-        kid_before, std_before = kid(f_sim, f_real, seed=seed)
-        kid_after, std_after = kid(f_fx, f_real, seed=seed)
-        distribution = KidScores(
-            kid_before,
-            kid_after,
-            std_before,
-            std_after,
-            f"project autoencoder, {ENCODER_STEPS} steps on the fit split's real",
-        )
+        with timed_span(KID):
+            distribution = _kid_scores(data.real[fit_idx].float(), real, sim, sim_fx, seed)
     return HowFar(
         effects={k: dict(v) for k, v in effects.items()},
         pixel_before=ssim_mse(sim, real),

@@ -17,6 +17,7 @@ from typing import TypeVar
 import torch
 import torch.nn.functional as F
 
+from tactile_bench.diagnose.breakdown import RENDER, RESPONSE_LOOKUP
 from tactile_bench.diagnose.candidates import (
     CANDIDATES,
     CameraCandidate,
@@ -34,6 +35,7 @@ from tactile_bench.effects import EFFECT_ORDER, EffectContext
 from tactile_bench.effects.optics import new_scene
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.response_fit import fit_response, response_design
+from tactile_bench.sensor.timing import timed_span
 
 Effects = Mapping[str, Params]
 _C = TypeVar("_C", bound=Candidate)
@@ -74,7 +76,7 @@ def lookup_for(scene: PairScene, geometry: Effects) -> torch.Tensor:
         if geometry:
             flat = replace(scene.flat(), depth=ref.depth, delta=torch.zeros_like(ref.real_change))
             height = _geometry_height(flat, geometry, None, scene.context(False))
-        with torch.no_grad():
+        with torch.no_grad(), timed_span(RESPONSE_LOOKUP):
             try:
                 table = fit_response(height, ref.real_change, scene.gel_mm)
                 table = torch.as_tensor(table, device=height.device)
@@ -148,6 +150,14 @@ def render(
     stochastic: bool = True,
 ) -> torch.Tensor:
     """Sim images (N, 3, S, S), 0..255, of ``scene`` with ``effects`` added (module docstring)."""
+    with timed_span(RENDER):
+        return _render(scene, effects, generator, stochastic)
+
+
+def _render(
+    scene: PairScene, effects: Effects, generator: torch.Generator | None, stochastic: bool
+) -> torch.Tensor:
+    """``render``'s work, in its span."""
     for name in effects:
         get_candidate(name).check(effects[name])
     ctx = scene.context(stochastic)

@@ -36,6 +36,7 @@ from typing import Any
 import torch
 from tqdm.auto import tqdm
 
+from tactile_bench.diagnose import breakdown
 from tactile_bench.diagnose.candidates import DEFAULT_CANDIDATES, NOT_CANDIDATES, get_candidate
 from tactile_bench.diagnose.gapfit import (
     GAP_METRIC,
@@ -64,6 +65,7 @@ from tactile_bench.diagnose.stability import Stability
 from tactile_bench.diagnose.stability import check as check_stability
 from tactile_bench.effects import EFFECT_ORDER
 from tactile_bench.errors import TactileBenchError
+from tactile_bench.sensor.timing import timed_span
 
 MIN_SHARE = 0.02  # a selected effect removes at least this share of the initial gap
 FLAG_UNEXPLAINED = 0.2  # residual share above which it is flagged
@@ -149,6 +151,7 @@ class GapProblem:
     noise: FrameNoise
     rounding: float
     seed: int
+    spans: breakdown.FitSpans = breakdown.MAIN_FIT  # the timed spans of this run of the selection
 
     @property
     def g0(self) -> float:
@@ -195,17 +198,25 @@ def explain_gap(
     names = _candidate_names(candidates)
     problem = _gap_problem(data, fit_idx, held_idx, seed)
     singles, fits = _fit_singles(problem, names, progress)
-    chosen = _select(problem, names, singles, fits, max_rounds, progress)
-    selected, current = _joint_if_better(problem, chosen.selected, chosen.current)
+    with timed_span(problem.spans.select):
+        chosen = _select(problem, names, singles, fits, max_rounds, progress)
+    with timed_span(breakdown.JOINT_REFIT):
+        selected, current = _joint_if_better(problem, chosen.selected, chosen.current)
     if attribution:
-        chosen = replace(chosen, ranking=_swapped_rivals(problem, singles, chosen.ranking, current))
-    result = _answer(problem, names, singles, chosen, selected, current)
-    result.background, result.background_note = _background_line(data, held_idx, problem)
+        with timed_span(breakdown.SWAPPED_RIVALS):
+            ranking = _swapped_rivals(problem, singles, chosen.ranking, current)
+        chosen = replace(chosen, ranking=ranking)
+    with timed_span(breakdown.ANSWER):
+        result = _answer(problem, names, singles, chosen, selected, current)
+    with timed_span(breakdown.BACKGROUND):
+        result.background, result.background_note = _background_line(data, held_idx, problem)
     if attribution:
-        gaps = _coalition_gaps(problem, fits, selected, current)
+        with timed_span(breakdown.SHAPLEY_COALITIONS):
+            gaps = _coalition_gaps(problem, fits, selected, current)
         result.shapley = shapley_shares(list(selected), gaps, problem.seed)
     if stability:
-        result.stability = _depth_split_check(data, names, chosen.ranking, seed)
+        with timed_span(breakdown.DEPTH_SPLIT):
+            result.stability = _depth_split_check(data, names, chosen.ranking, seed)
     return result
 
 
@@ -227,10 +238,26 @@ def _candidate_names(candidates: Sequence[str] | None) -> list[str]:
 
 
 def _gap_problem(
-    data: DiagnosisPairs, fit_idx: torch.Tensor, held_idx: torch.Tensor, seed: int
+    data: DiagnosisPairs,
+    fit_idx: torch.Tensor,
+    held_idx: torch.Tensor,
+    seed: int,
+    timed: breakdown.FitSpans = breakdown.MAIN_FIT,
 ) -> GapProblem:
     """The splits as (scene, real target), sharing the fit split's reference, and what the
-    held-out pairs measure before any effect."""
+    held-out pairs measure before any effect; ``timed``: the spans this run is timed in."""
+    with timed_span(timed.setup):
+        return _set_up(data, fit_idx, held_idx, seed, timed)
+
+
+def _set_up(
+    data: DiagnosisPairs,
+    fit_idx: torch.Tensor,
+    held_idx: torch.Tensor,
+    seed: int,
+    timed: breakdown.FitSpans,
+) -> GapProblem:
+    """``_gap_problem``'s work, in its span."""
     reference = fit_reference(data, fit_idx)
     fit = (make_scene(data, fit_idx, reference).precompute(), Target.of(data.real[fit_idx]))
     held = (make_scene(data, held_idx, reference).precompute(), Target.of(data.real[held_idx]))
@@ -246,6 +273,7 @@ def _gap_problem(
         ),
         rounding=rounding_gap(held[1], seed),
         seed=seed,
+        spans=timed,
     )
 
 
@@ -268,11 +296,13 @@ def _fit_each(
     the held-out per-pair gap of ``prior`` + it."""
     out: dict[str, tuple[dict[str, float], torch.Tensor]] = {}
     desc = "refit with selected" if prior else "fit candidates"
+    span = problem.spans.refit if prior else problem.spans.candidate_fit
     bar = tqdm(names, desc=desc, unit="effect", disable=not progress or not names)
     for name in bar:
         bar.set_postfix_str(name)
-        params = fit_candidate(name, *problem.fit, prior=prior or None, seed=problem.seed)
-        out[name] = (params, model_gap(*problem.held, {**prior, name: params}, problem.seed))
+        with timed_span(span):
+            params = fit_candidate(name, *problem.fit, prior=prior or None, seed=problem.seed)
+            out[name] = (params, model_gap(*problem.held, {**prior, name: params}, problem.seed))
     return out
 
 
@@ -546,10 +576,12 @@ def first_round(
     names: Sequence[str],
     seed: int,
 ) -> list[EffectFit]:
-    """The selection's first round on these splits: the effect it names first, if any."""
-    problem = _gap_problem(data, fit_idx, held_idx, seed)
+    """The selection's first round on these splits: the effect it names first, if any
+    (timed in the depth split's spans: the check is its one caller in the diagnosis)."""
+    problem = _gap_problem(data, fit_idx, held_idx, seed, breakdown.DEPTH_SPLIT_FIT)
     singles, fits = _fit_singles(problem, names, progress=False)
-    return _select(problem, names, singles, fits, max_rounds=1, progress=False).ranking
+    with timed_span(problem.spans.select):
+        return _select(problem, names, singles, fits, max_rounds=1, progress=False).ranking
 
 
 def _depth_split_check(

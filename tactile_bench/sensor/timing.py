@@ -1,4 +1,5 @@
-"""Opt-in timers of named spans of the simulation: where a dataset build spends its time.
+"""Opt-in timers of named spans of the simulation: where a dataset build spends its time
+(and the gap diagnosis: ``diagnose.breakdown``).
 
 The renderers mark their spans with ``with timed_span("sim.optics"):``. Nothing is recorded
 (and the cost is one global lookup) unless a ``SpanTimer`` is active, so the builders keep
@@ -18,7 +19,8 @@ _ACTIVE: SpanTimer | None = None
 
 
 class SpanTimer:
-    """Wall and CPU seconds per span (exclusive of nested spans), while active.
+    """Wall and CPU seconds per span (exclusive of nested spans), its wall seconds with
+    them (``inclusive``) and how often each span was entered, while active.
 
     CPU time is the calling thread's, so spans running concurrently in several Python
     threads add up correctly; work a library hands to its own helper threads (torch's
@@ -28,6 +30,8 @@ class SpanTimer:
     def __init__(self) -> None:
         self.wall: dict[str, float] = defaultdict(float)
         self.cpu: dict[str, float] = defaultdict(float)
+        self.inclusive: dict[str, float] = defaultdict(float)
+        self.calls: dict[str, int] = defaultdict(int)
         self._local = threading.local()  # per thread: a stack of [child wall, child cpu]
         self._lock = threading.Lock()
         self._previous: SpanTimer | None = None
@@ -55,6 +59,8 @@ class SpanTimer:
             with self._lock:
                 self.wall[name] += wall - child_wall
                 self.cpu[name] += cpu - child_cpu
+                self.inclusive[name] += wall
+                self.calls[name] += 1
             if stack:
                 stack[-1][0] += wall
                 stack[-1][1] += cpu
