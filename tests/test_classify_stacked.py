@@ -3,6 +3,7 @@ result is the one training it alone gives."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 from typing import Any
@@ -175,6 +176,39 @@ def test_each_seed_trains_on_its_own_rows_as_on_its_own_tensor(tmp_path: Path) -
         assert torch.equal(predict(batched[k], test_fg), predict(alone, test_fg))
 
 
+def test_models_of_one_seed_on_different_data_shift_as_each_alone(tmp_path: Path) -> None:
+    """The diagnosis trains one seed's classifier on several sets (sim, sim + effects, real)
+    with random shifts: batched, each member draws the shifts that training it alone draws."""
+    sets = [data(40, seed=s)[0] for s in (0, 5, 9)]
+    _, labels = data(40, seed=0)
+    config = ClassifierConfig(**TINY, precision="32-true", seed=3, augment=True, shift_px=3)
+    assert batchable([config] * 3, QUIET) is None
+    rows = [torch.arange(40) + 40 * k for k in range(3)]
+    batched = train_classifiers(
+        torch.cat(sets), labels.repeat(3), [config] * 3, tmp_path / "b", [], QUIET,
+        num_classes=CLASSES, subsets=rows,
+    )  # fmt: skip
+    test_fg, _ = data(24, seed=1)
+    for k, fg in enumerate(sets):
+        alone = train_classifier(
+            fg, labels, config, tmp_path / f"a{k}", [], dict(QUIET), num_classes=CLASSES
+        )
+        a, b = alone.state_dict(), batched[k].state_dict()
+        for key in a:  # the tolerance of the tests above, for the same reasons
+            torch.testing.assert_close(b[key], a[key], rtol=1e-4, atol=1e-4, msg=key)
+        assert torch.equal(predict(batched[k], test_fg), predict(alone, test_fg))
+    unshifted = train_classifier(
+        sets[0], labels, dataclasses.replace(config, augment=False), tmp_path / "n", [],
+        dict(QUIET), num_classes=CLASSES,
+    )  # fmt: skip
+    moved = max(
+        float((unshifted.state_dict()[k] - batched[0].state_dict()[k]).abs().max())
+        for k in unshifted.state_dict()
+        if unshifted.state_dict()[k].is_floating_point()
+    )
+    assert moved > 1e-3  # the shifts did reach the batched training
+
+
 class Killed(Exception):
     """Stands in for SIGKILL: training stops dead, nothing more is saved."""
 
@@ -212,7 +246,7 @@ def test_a_killed_batched_fit_resumes_where_it_stopped(
 
 def test_batchable_says_why_not() -> None:
     assert batchable(configs(), QUIET) is None
-    assert "augment" in str(batchable(configs(augment=True), QUIET))
+    assert "augment" in str(batchable(configs(augment=True), QUIET))  # seeds differ
     assert "val_fraction" in str(batchable(configs(val_fraction=0.2), QUIET))
     assert "seed" in str(batchable([*configs(), ClassifierConfig(**TINY, lr=0.1)], QUIET))
     assert "processes" in str(batchable(configs(), {"strategy": "ddp", "devices": 2}))

@@ -24,6 +24,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from tactile_bench.classify.module import random_shift
 from tactile_bench.training import ResumableSampler
 
 #: parameter-free layers that mix channels (or draw random numbers): a stacked network with
@@ -180,7 +181,13 @@ class StackedClassifier(L.LightningModule):
     (x (B, count * C, S, S), y (count, B)), the loss the sum of the seeds' mean losses."""
 
     def __init__(
-        self, net: nn.Module, count: int, num_classes: int, lr: float, weight_decay: float = 0.0
+        self,
+        net: nn.Module,
+        count: int,
+        num_classes: int,
+        lr: float,
+        weight_decay: float = 0.0,
+        shift_px: int = 0,
     ) -> None:
         super().__init__()
         self.net = net
@@ -188,6 +195,9 @@ class StackedClassifier(L.LightningModule):
         self.num_classes = num_classes
         self.lr = lr
         self.weight_decay = weight_decay
+        # random shifts (BrailleClassifier's augmentation) of each stacked image, the same for
+        # every member: what each draws alone when the members share one seed
+        self.shift_px = shift_px
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Logits (B, count, num_classes) for the seeds' stacked batches (B, count * C, S, S)."""
@@ -197,6 +207,8 @@ class StackedClassifier(L.LightningModule):
         self, batch: tuple[torch.Tensor, torch.Tensor], batch_idx: int
     ) -> torch.Tensor:
         x, y = batch
+        if self.shift_px > 0:
+            x = random_shift(x, self.shift_px)
         logits = self(x)
         # a sum: each seed's parameters get exactly the gradient of its own mean loss
         loss = torch.stack([F.cross_entropy(logits[:, k], y[k]) for k in range(self.count)]).sum()

@@ -242,8 +242,11 @@ def batchable(
     if any({**c.to_dict(), "seed": None} != first for c in configs[1:]):
         return "the configs differ in more than their seed"
     settings = dict(trainer_kwargs or {})
-    if configs[0].augment:
-        return "augment=True draws the shifts from the global RNG, which seeds in a batch share"
+    if configs[0].augment and len({c.seed for c in configs}) > 1:
+        return (
+            "augment=True draws the shifts from the global RNG, which seeds in a batch share "
+            "(models of one seed on different data share them as each alone would draw them)"
+        )
     if configs[0].val_fraction > 0:
         return "val_fraction > 0: each seed would hold out its own validation split"
     if processes(settings) > 1:
@@ -296,7 +299,10 @@ def train_classifiers(
     data = SeedDataModule(SeedBatches((x, y), seeds, config.batch_size, subsets))
     rows = data.batches.subsets
     net = stack_networks([m.net for m in models])
-    module = StackedClassifier(net, len(models), num_classes, config.lr, config.weight_decay)
+    shift = config.shift_px if config.augment else 0  # one seed: the draws each alone makes
+    module = StackedClassifier(
+        net, len(models), num_classes, config.lr, config.weight_decay, shift_px=shift
+    )
     logger_list = list(loggers) if loggers is not None else [CSVLogger(str(out_dir), name="logs")]
     n_train = rows.shape[1]
     kwargs = _trainer_settings(config, n_train, False, out_dir, logger_list, trainer_kwargs)

@@ -199,34 +199,46 @@ def _classifiers(
     )
 
 
-def _accuracy(
-    setup: _Classifiers, x: torch.Tensor, seed: int
-) -> tuple[float, dict[str, list[float]] | None]:
-    """Held-out real accuracy of a classifier trained on foregrounds ``x`` (noise matched to
-    the real frames'), and the noise it had and was given."""
+def _accuracies(
+    setup: _Classifiers, sets: Mapping[str, torch.Tensor], seed: int
+) -> dict[str, tuple[float, dict[str, list[float]] | None]]:
+    """Held-out real accuracy of a classifier trained on each set of foregrounds (noise
+    matched to the real frames'), and the noise each had and was given. One seed on
+    several sets: trained as one stacked model (``classify.train_classifiers``), each
+    member as it would train alone (its initial weights, batches and shifts)."""
+    from tactile_bench.classify import evaluate
+
+    noises: dict[str, dict[str, list[float]] | None] = {}
+    inputs: dict[str, torch.Tensor] = {}
+    for source, x in sets.items():
+        noises[source] = None
+        if setup.real_std is not None:
+            x, own, added = match_noise(x, setup.real_std, setup.copies, seed)
+            noises[source] = {"std": (255 * own).tolist(), "added": (255 * added).tolist()}
+        inputs[source] = x
     with timed_span(DOWNSTREAM):
-        return _train_and_test(setup, x, seed)
+        models = _train(setup, list(inputs.values()))
+    n_classes = len(setup.classes)
+    return {
+        source: (evaluate(model, setup.test, setup.y_test, num_classes=n_classes)["accuracy"],
+                 noises[source])
+        for source, model in zip(inputs, models, strict=True)
+    }  # fmt: skip
 
 
-def _train_and_test(
-    setup: _Classifiers, x: torch.Tensor, seed: int
-) -> tuple[float, dict[str, list[float]] | None]:
-    """``_accuracy``'s work, in its span."""
-    from tactile_bench.classify import evaluate, train_classifier
+def _train(setup: _Classifiers, inputs: list[torch.Tensor]) -> list[Any]:
+    """One classifier of ``setup.config`` on each of ``inputs`` (same labels), batched."""
+    from tactile_bench.classify.train import train_classifiers
 
-    noise = None
-    if setup.real_std is not None:
-        x, own, added = match_noise(x, setup.real_std, setup.copies, seed)
-        noise = {"std": (255 * own).tolist(), "added": (255 * added).tolist()}
     quiet = {"enable_checkpointing": False, "enable_progress_bar": False}
     logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
-    n_classes = len(setup.classes)
+    n = len(inputs[0])
+    rows = [torch.arange(n) + k * n for k in range(len(inputs))]
     with tempfile.TemporaryDirectory() as tmp:
-        model = train_classifier(
-            x, setup.y_train, setup.config, tmp, loggers=[], trainer_kwargs=quiet,
-            num_classes=n_classes,
+        return train_classifiers(
+            torch.cat(inputs), setup.y_train.repeat(len(inputs)), [setup.config] * len(inputs),
+            tmp, loggers=[], trainer_kwargs=quiet, num_classes=len(setup.classes), subsets=rows,
         )  # fmt: skip
-    return evaluate(model, setup.test, setup.y_test, num_classes=n_classes)["accuracy"], noise
 
 
 def _sim_plus(
@@ -277,8 +289,7 @@ def _downstream(
             "copies": setup.copies,
             "real_std": (255 * setup.real_std).tolist(),
         }
-    for source, x in train_sets.items():
-        accuracy, noise = _accuracy(setup, x, seed)
+    for source, (accuracy, noise) in _accuracies(setup, train_sets, seed).items():
         if noise is not None:
             out.noise[source] = noise
         setattr(out, f"{source}_accuracy", accuracy)
@@ -297,10 +308,8 @@ def accuracy_with_each(
     setup = _classifiers(data, fit_idx, held_idx, seed)
     if isinstance(setup, Skipped):
         raise TactileBenchError(f"no downstream classifier: {setup.reason}")
-    return {
-        name: _accuracy(setup, _sim_plus(data, fit_idx, effects, seed), seed)[0]
-        for name, effects in coalitions.items()
-    }
+    sets = {name: _sim_plus(data, fit_idx, effects, seed) for name, effects in coalitions.items()}
+    return {name: accuracy for name, (accuracy, _) in _accuracies(setup, sets, seed).items()}
 
 
 def _kid_scores(
