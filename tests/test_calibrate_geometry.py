@@ -97,3 +97,12 @@ def test_only_deterministic_geometry_is_refitted() -> None:
     assert names, "the catalogue has a deterministic geometry candidate"
     for name in names:
         assert EFFECTS[name].acts_on == "geometry" and not EFFECTS[name].stochastic
+
+
+def test_pairs_without_contact_leave_the_geometry_as_selected() -> None:
+    """No contact region to judge by: every value ties, and a tie keeps what was selected."""
+    data = _pairs(None)
+    flat = dataclasses.replace(data, depth=torch.zeros_like(data.depth))
+    start = {"elastic_spread": {"sigma_mm": 3.0, "contact_scale": 0.4}}
+    effects, _ = refit_geometry(flat, start)
+    assert effects == start
