@@ -148,7 +148,7 @@ def refit_geometry(
     docstring), and a record: the CV error before and after and every value tried."""
     out: Effects = {n: dict(p) for n, p in effects.items()}
     n_folds = min(FOLDS, len(fit))
-    folds = [torch.arange(k, len(fit), n_folds) for k in range(n_folds)]
+    folds = [torch.arange(k, len(fit), n_folds, device=fit.depth.device) for k in range(n_folds)]
     before = contact_cv_error(fit, out, folds)
     record: dict[str, object] = {"folds": n_folds, "cv_contact_mse_before": round(before, 3)}
     tried: dict[str, dict[str, float]] = {}

@@ -151,32 +151,25 @@ def render(
 ) -> torch.Tensor:
     """Sim images (N, 3, S, S), 0..255, of ``scene`` with ``effects`` added (module docstring)."""
     with timed_span(RENDER):
-        return _render(scene, effects, generator, stochastic)
-
-
-def _render(
-    scene: PairScene, effects: Effects, generator: torch.Generator | None, stochastic: bool
-) -> torch.Tensor:
-    """``render``'s work, in its span."""
-    for name in effects:
-        get_candidate(name).check(effects[name])
-    ctx = scene.context(stochastic)
-    if "optical_response" in effects:
-        geometry = {**scene.baked, **deterministic_geometry(effects)}
-        scene = replace(scene, lookup=lookup_for(scene, geometry))
-    for cand, p in of_kind(effects, PoseCandidate):
-        scene = cand.apply(scene, p)
-    height, delta = _geometry(scene, effects, generator, ctx)
-    contact = _through_sensor(scene, effects, height, delta, ctx)
-    if contact.shape[0] != len(scene):
-        contact = contact.expand(len(scene), -1, -1, -1)
-    no_contact = scene.depth.new_zeros(1, 1, scene.size, scene.size)
-    flat = _through_sensor(scene, effects, no_contact, None, ctx)
-    measured = scene.background
-    frames = Composite(measured + (contact - flat), flat, measured)
-    for cand, p in of_kind(effects, CameraCandidate):
-        frames = cand.on_composite(frames, p, generator, ctx)
-    return frames.image.clamp(0.0, 255.0)
+        for name in effects:
+            get_candidate(name).check(effects[name])
+        ctx = scene.context(stochastic)
+        if "optical_response" in effects:
+            geometry = {**scene.baked, **deterministic_geometry(effects)}
+            scene = replace(scene, lookup=lookup_for(scene, geometry))
+        for cand, p in of_kind(effects, PoseCandidate):
+            scene = cand.apply(scene, p)
+        height, delta = _geometry(scene, effects, generator, ctx)
+        contact = _through_sensor(scene, effects, height, delta, ctx)
+        if contact.shape[0] != len(scene):
+            contact = contact.expand(len(scene), -1, -1, -1)
+        no_contact = scene.depth.new_zeros(1, 1, scene.size, scene.size)
+        flat = _through_sensor(scene, effects, no_contact, None, ctx)
+        measured = scene.background
+        frames = Composite(measured + (contact - flat), flat, measured)
+        for cand, p in of_kind(effects, CameraCandidate):
+            frames = cand.on_composite(frames, p, generator, ctx)
+        return frames.image.clamp(0.0, 255.0)
 
 
 def render_background(scene: PairScene, effects: Effects) -> torch.Tensor:

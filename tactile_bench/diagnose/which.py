@@ -247,34 +247,23 @@ def _gap_problem(
     """The splits as (scene, real target), sharing the fit split's reference, and what the
     held-out pairs measure before any effect; ``timed``: the spans this run is timed in."""
     with timed_span(timed.setup):
-        return _set_up(data, fit_idx, held_idx, seed, timed)
-
-
-def _set_up(
-    data: DiagnosisPairs,
-    fit_idx: torch.Tensor,
-    held_idx: torch.Tensor,
-    seed: int,
-    timed: breakdown.FitSpans,
-) -> GapProblem:
-    """``_gap_problem``'s work, in its span."""
-    reference = fit_reference(data, fit_idx)
-    fit = (make_scene(data, fit_idx, reference).precompute(), Target.of(data.real[fit_idx]))
-    held = (make_scene(data, held_idx, reference).precompute(), Target.of(data.real[held_idx]))
-    n_screen = torch.arange(min(len(fit_idx), SCREEN_PAIRS))
-    pairs = data.subset(held_idx)
-    return GapProblem(
-        fit=fit,
-        held=held,
-        screen=(fit[0].subset(n_screen), fit[1].subset(n_screen)),
-        gap0=model_gap(*held, {}, seed),
-        noise=frame_noise(
-            pairs.depth, pairs.sim, pairs.real, pairs.background, pairs.sim_background
-        ),
-        rounding=rounding_gap(held[1], seed),
-        seed=seed,
-        spans=timed,
-    )
+        reference = fit_reference(data, fit_idx)
+        fit = (make_scene(data, fit_idx, reference).precompute(), Target.of(data.real[fit_idx]))
+        held = (make_scene(data, held_idx, reference).precompute(), Target.of(data.real[held_idx]))
+        n_screen = torch.arange(min(len(fit_idx), SCREEN_PAIRS))
+        pairs = data.subset(held_idx)
+        return GapProblem(
+            fit=fit,
+            held=held,
+            screen=(fit[0].subset(n_screen), fit[1].subset(n_screen)),
+            gap0=model_gap(*held, {}, seed),
+            noise=frame_noise(
+                pairs.depth, pairs.sim, pairs.real, pairs.background, pairs.sim_background
+            ),
+            rounding=rounding_gap(held[1], seed),
+            seed=seed,
+            spans=timed,
+        )
 
 
 def _fit_singles(
