@@ -309,7 +309,7 @@ def _select(
     if problem.noisy_sim:
         denoise = DenoiseCheck(problem.held, problem.noise.topped_up(problem.seed), problem.seed)
     state = Round({}, [], problem.gap0, fits, MIN_SHARE * problem.g0)
-    for _ in range(max_rounds):
+    for round_no in range(1, max_rounds + 1):
         if not state.options:
             break
         pick = pick_effect(
@@ -341,6 +341,8 @@ def _select(
 
 def _unmasks_noise(selected: Mapping[str, Mapping[str, float]], row: EffectFit) -> bool:
     """The first effect that draws camera randomness: the single fits were made against a
+        if round_no == max_rounds:  # no round left to read the refits
+            break
     gap its noise dominated, and the threshold changes (``_add``)."""
     return is_stochastic({row.effect: row.params}) and not is_stochastic(selected)
 
