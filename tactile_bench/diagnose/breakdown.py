@@ -6,7 +6,9 @@ active: ``explain_gap`` called on its own pays one global lookup per span). Span
 a span's ``seconds`` exclude the spans opened inside it, so the seconds of all spans add up
 to the timed total; ``inclusive_seconds`` count them in (a fit's renders, its gap metric).
 
-The spans sit around per-candidate, per-round or per-render work, never per pixel.
+The spans sit around per-candidate, per-round or per-render work, never per pixel. With
+``diagnose --workers N`` the fits' spans are the workers' own, summed over them, and this
+process's wait for them is ``WAIT_WORKERS``: the seconds then add up to more than the wall.
 """
 
 from __future__ import annotations
@@ -36,6 +38,9 @@ SHAPLEY_COALITIONS = "which.shapley_coalitions"
 DEPTH_SPLIT = "which.depth_split"
 #: every bootstrap interval: shrinks, paired differences, Shapley shares
 BOOTSTRAP = "bootstrap"
+#: this process waiting on fits run in worker processes (``diagnose.workers``); the spans
+#: inside those fits are the workers' own, summed over them
+WAIT_WORKERS = "which.waiting_on_workers"
 #: the candidate simulator's renders (``simulate.render``): in fits, scores and figures
 RENDER = "simulate.render"
 #: the optical-response lookup refitted under a geometry (``simulate.lookup_for``)

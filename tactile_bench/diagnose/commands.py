@@ -169,10 +169,24 @@ def summary_lines(result: Diagnosis) -> list[str]:
     )
 
 
+def add_workers_argument(parser: Any) -> None:
+    """``--workers`` of a command that diagnoses."""
+    parser.add_argument(
+        "--workers",
+        default="1",
+        metavar="N",
+        help="processes the diagnosis's fits run in side by side, one torch thread each "
+        "(auto: one per core, at most 8; default 1: all in this process, which on 2 cores "
+        "is as fast: docs/results/diagnosis_speed.md)",
+    )
+
+
 def _cmd_diagnose(ns: argparse.Namespace) -> int:
     from tactile_bench.diagnose.paired import detect_layout, load_paired
     from tactile_bench.diagnose.run import check_candidates, diagnose, stratified_split
+    from tactile_bench.diagnose.workers import fit_workers, parse_workers
 
+    workers = parse_workers(ns.workers)
     check_candidates(ns.candidates)
     layout, base = detect_layout(ns.paired_dir)
     data = load_paired(ns.paired_dir, size=ns.size)
@@ -191,16 +205,17 @@ def _cmd_diagnose(ns: argparse.Namespace) -> int:
     if ns.max_pairs is not None and len(data) > ns.max_pairs:
         keep, _ = stratified_split(data.labels, ns.max_pairs / len(data), ns.seed)
         data = data.subset(keep)
-    report = diagnose(
-        data,
-        ns.out,
-        downstream=not ns.no_downstream,
-        candidates=ns.candidates,
-        seed=ns.seed,
-        fit_fraction=ns.fit_fraction,
-        progress=not ns.no_progress,
-        source={"root": str(Path(base).resolve()), "layout": layout},
-    )
+    with fit_workers(workers):
+        report = diagnose(
+            data,
+            ns.out,
+            downstream=not ns.no_downstream,
+            candidates=ns.candidates,
+            seed=ns.seed,
+            fit_fraction=ns.fit_fraction,
+            progress=not ns.no_progress,
+            source={"root": str(Path(base).resolve()), "layout": layout},
+        )
     print("\n".join(summary_lines(report)))
     if ns.timing:
         from tactile_bench.diagnose.breakdown import breakdown_lines
@@ -399,6 +414,7 @@ def _add_diagnose(subparsers: Any) -> None:
         help="also print where the time went: calls and seconds of every timed span "
         "(always in report.json's timing_s.breakdown)",
     )
+    add_workers_argument(diag)
     diag.add_argument("--no-progress", action="store_true")
     diag.set_defaults(func=_cmd_diagnose, omp_wait_policy=KEEP_OMP_WAIT_POLICY)
 

@@ -63,6 +63,7 @@ from tactile_bench.diagnose.shapley import ShapleyShare, shapley_shares
 from tactile_bench.diagnose.simulate import deterministic_geometry, lookup_for, render
 from tactile_bench.diagnose.stability import Stability
 from tactile_bench.diagnose.stability import check as check_stability
+from tactile_bench.diagnose.workers import map_fits
 from tactile_bench.effects import EFFECT_ORDER
 from tactile_bench.errors import TactileBenchError
 from tactile_bench.sensor.timing import timed_span
@@ -283,16 +284,27 @@ def _fit_each(
 ) -> dict[str, tuple[dict[str, float], torch.Tensor]]:
     """Each of ``names`` fitted on the fit split with ``prior`` in place: its parameters and
     the held-out per-pair gap of ``prior`` + it."""
-    out: dict[str, tuple[dict[str, float], torch.Tensor]] = {}
     desc = "refit with selected" if prior else "fit candidates"
-    span = problem.spans.refit if prior else problem.spans.candidate_fit
-    bar = tqdm(names, desc=desc, unit="effect", disable=not progress or not names)
-    for name in bar:
-        bar.set_postfix_str(name)
-        with timed_span(span):
-            params = fit_candidate(name, *problem.fit, prior=prior or None, seed=problem.seed)
-            out[name] = (params, model_gap(*problem.held, {**prior, name: params}, problem.seed))
-    return out
+    bar = tqdm(total=len(names), desc=desc, unit="effect", disable=not progress or not names)
+
+    def done(i: int) -> None:
+        bar.set_postfix_str(names[i])
+        bar.update()
+
+    with bar:
+        calls = [(problem, name, prior) for name in names]
+        fits = map_fits(_fit_one, calls, problem.fit[0].reference, done)
+    return dict(zip(names, fits, strict=True))
+
+
+def _fit_one(
+    problem: GapProblem, name: str, prior: Mapping[str, Mapping[str, float]]
+) -> tuple[dict[str, float], torch.Tensor]:
+    """``name`` fitted with ``prior`` in place: its parameters and held-out per-pair gap
+    (a module-level function: ``map_fits`` may run it in a worker process)."""
+    with timed_span(problem.spans.refit if prior else problem.spans.candidate_fit):
+        params = fit_candidate(name, *problem.fit, prior=prior or None, seed=problem.seed)
+        return params, model_gap(*problem.held, {**prior, name: params}, problem.seed)
 
 
 def _select(
@@ -329,6 +341,8 @@ def _select(
         state = _add(problem, state, pick.row, unmasked)
         if float(state.current.mean()) < state.threshold:  # nothing left that could pass
             break
+        if round_no == max_rounds:  # no round left to read the refits
+            break
         if unmasked:  # every single fit was judged against a gap the noise dominated
             rest = [n for n in names if n not in state.selected]
         else:
@@ -341,8 +355,6 @@ def _select(
 
 def _unmasks_noise(selected: Mapping[str, Mapping[str, float]], row: EffectFit) -> bool:
     """The first effect that draws camera randomness: the single fits were made against a
-        if round_no == max_rounds:  # no round left to read the refits
-            break
     gap its noise dominated, and the threshold changes (``_add``)."""
     return is_stochastic({row.effect: row.params}) and not is_stochastic(selected)
 
@@ -452,14 +464,17 @@ def _swapped_rivals(
     if len(chosen) < 2:
         return ranking
     strong = [r.effect for r in singles if r.effect not in chosen and r.shrink >= SCREEN_SHARE]
+    tries = [
+        (row.effect, rival)
+        for row in ranking
+        for rival in [n for n in strong if n not in row.confusable_with][:SWAP_RIVALS]
+    ]
+    calls = [(problem, [*(n for n in chosen if n != e), rival]) for e, rival in tries]
+    gaps = map_fits(_refit_coalition, calls, problem.fit[0].reference)  # the fits side by side
+    as_good = [paired_difference_ci(problem.gap0, current, g, problem.seed)[0] <= 0 for g in gaps]
     out = []
     for row in ranking:
-        rivals = [n for n in strong if n not in row.confusable_with][:SWAP_RIVALS]
-        found = []
-        for rival in rivals:
-            swapped = _refit_coalition(problem, [*(n for n in chosen if n != row.effect), rival])
-            if paired_difference_ci(problem.gap0, current, swapped, problem.seed)[0] <= 0:
-                found.append(rival)
+        found = [r for (e, r), ok in zip(tries, as_good, strict=True) if ok and e == row.effect]
         if found:
             rivals = [*row.confusable_with, *found]
             # what the round named missing of the no-contact frame stays
@@ -525,12 +540,10 @@ def _coalition_gaps(
     the fit split on their own (``_refit_coalition``)."""
     names = sorted(selected)
     gaps = {frozenset(): problem.gap0, frozenset(names): current}
-    for k in range(1, len(names)):
-        for coalition in itertools.combinations(names, k):
-            if k == 1:
-                gaps[frozenset(coalition)] = fits[coalition[0]][1]
-            else:
-                gaps[frozenset(coalition)] = _refit_coalition(problem, coalition)
+    gaps.update({frozenset([name]): fits[name][1] for name in names if len(names) > 1})
+    refitted = [c for k in range(2, len(names)) for c in itertools.combinations(names, k)]
+    refits = map_fits(_refit_coalition, [(problem, c) for c in refitted], problem.fit[0].reference)
+    gaps.update({frozenset(c): g for c, g in zip(refitted, refits, strict=True)})
     return gaps
 
 

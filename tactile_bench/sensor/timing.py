@@ -66,16 +66,26 @@ class SpanTimer:
                 stack[-1][1] += cpu
 
     def merge(
-        self, wall: dict[str, float], cpu: dict[str, float], process_cpu: float = 0.0
+        self,
+        wall: dict[str, float],
+        cpu: dict[str, float],
+        process_cpu: float = 0.0,
+        calls: dict[str, int] | None = None,
+        inclusive: dict[str, float] | None = None,
     ) -> None:
         """Add span times recorded elsewhere (e.g. by a worker process, whose whole CPU
-        time ``process_cpu`` goes to ``other_cpu``: the parent's clock does not see it)."""
+        time ``process_cpu`` goes to ``other_cpu``: the parent's clock does not see it),
+        with their call counts and inclusive seconds when given."""
         with self._lock:
             self.other_cpu += process_cpu
             for name, seconds in wall.items():
                 self.wall[name] += seconds
             for name, seconds in cpu.items():
                 self.cpu[name] += seconds
+            for name, count in (calls or {}).items():
+                self.calls[name] += count
+            for name, seconds in (inclusive or {}).items():
+                self.inclusive[name] += seconds
 
 
 def active_timer() -> SpanTimer | None:
