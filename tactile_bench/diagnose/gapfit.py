@@ -407,7 +407,8 @@ def _adam(
         trace.append(float(value.detach()))
         if trace[-1] < best_value:
             best_value, best_z = trace[-1], z.detach().clone()
-        if not value.requires_grad or _stalled(trace):  # e.g. a blur too narrow to act
+        # no gradient here (e.g. a blur too narrow to act), or no progress for a while
+        if not value.requires_grad or _stalled(trace):
             break
         opt.zero_grad()
         value.backward()
