@@ -97,7 +97,7 @@ def test_parse_workers() -> None:
     assert parse_workers("auto") == auto_workers() >= 1
     assert parse_workers(None) == auto_workers()
     assert parse_workers("3") == 3 and parse_workers(1) == 1
-    for bad in ("0", "x", "-1", "2.5", ""):
+    for bad in ("0", "x", "-1", "2.5", "", "65", "100000"):
         with pytest.raises(TactileBenchError, match="--workers") as err:
             parse_workers(bad)
         assert "\n" not in str(err.value) and repr(bad) in str(err.value)

@@ -37,6 +37,7 @@ T = TypeVar("T")
 #: most workers ``auto`` opens: a round fits at most 14 candidates, and each worker holds
 #: its own torch (about 300 MB)
 MAX_AUTO_WORKERS = 8
+MAX_WORKERS = 64  # more processes than any round has fits
 
 _POOL: tuple[ProcessPoolExecutor, int] | None = None  # the open workers and their count
 
@@ -55,8 +56,10 @@ def parse_workers(value: str | int | None, key: str = "--workers") -> int:
         n = int(value)
     except ValueError:
         n = 0
-    if n < 1:
-        raise TactileBenchError(f"{key}: 'auto' or a whole number >= 1, got {value!r}")
+    if not 1 <= n <= MAX_WORKERS:
+        raise TactileBenchError(
+            f"{key}: 'auto' or a whole number from 1 to {MAX_WORKERS}, got {value!r}"
+        )
     return n
 
 
