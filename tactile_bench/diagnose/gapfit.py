@@ -50,10 +50,6 @@ MAX_GRID_PARAMS = 2  # up to this many gradient-free parameters: a full grid, no
 # many pairs, and the best WHOLE_SHORTLIST of them scored on the Adam pairs
 WHOLE_PAIRS = 16
 WHOLE_SHORTLIST = 5
-# Adam stops once its best of the last ADAM_PATIENCE steps is not ADAM_MIN_GAIN (relative)
-# below its best before them: most fits settle, or overshoot, within a few steps
-ADAM_PATIENCE = 5
-ADAM_MIN_GAIN = 1e-3
 #: a point of unit coordinates -> its mean gap
 Loss = Callable[[Mapping[str, ParamValue]], float]
 
@@ -394,43 +390,29 @@ def _adam(
     budget: FitBudget,
     steps: int | None = None,
 ) -> None:
-    """Projected Adam on ``u[names]`` (unit coordinates, kept in [0, 1]); keeps the best,
-    and stops when it stalls (``ADAM_PATIENCE``)."""
+    """Projected Adam on ``u[names]`` (unit coordinates, kept in [0, 1]); keeps the best."""
     if not names:
         return
     z = torch.tensor([float(u[n]) for n in names], requires_grad=True)
     opt = torch.optim.Adam([z], lr=budget.lr)
     best_value, best_z = math.inf, z.detach().clone()
-    trace: list[float] = []
     for _ in range(budget.adam_steps if steps is None else steps):
         value = loss_fn({**u, **{n: z[i] for i, n in enumerate(names)}})
-        trace.append(float(value.detach()))
-        if trace[-1] < best_value:
-            best_value, best_z = trace[-1], z.detach().clone()
-        # no gradient here (e.g. a blur too narrow to act), or no progress for a while
-        if not value.requires_grad or _stalled(trace):
+        if float(value.detach()) < best_value:
+            best_value, best_z = float(value.detach()), z.detach().clone()
+        if not value.requires_grad:  # e.g. a blur too narrow to act: no gradient here
             break
         opt.zero_grad()
         value.backward()
         opt.step()
         with torch.no_grad():
             z.clamp_(0.0, 1.0)
-    else:  # the last step's point was not scored yet (a break leaves z where it scored)
-        with torch.no_grad():
-            final = float(loss_fn({**u, **{n: z[i] for i, n in enumerate(names)}}))
-        if final < best_value:
-            best_z = z.detach().clone()
+    with torch.no_grad():
+        final = float(loss_fn({**u, **{n: z[i] for i, n in enumerate(names)}}))
+    if final < best_value:
+        best_z = z.detach().clone()
     for i, n in enumerate(names):
         u[n] = float(best_z[i])
-
-
-def _stalled(trace: list[float]) -> bool:
-    """The last ``ADAM_PATIENCE`` values improve on the best before them by less than
-    ``ADAM_MIN_GAIN`` of it."""
-    if len(trace) <= ADAM_PATIENCE:
-        return False
-    before = min(trace[:-ADAM_PATIENCE])
-    return min(trace[-ADAM_PATIENCE:]) >= before - ADAM_MIN_GAIN * abs(before)
 
 
 def fit_jointly(
