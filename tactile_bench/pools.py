@@ -29,6 +29,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import contextmanager, suppress
 from typing import Any
 
+import torch
 import torch.multiprocessing
 
 
@@ -57,6 +58,16 @@ def spawned_pool(
         yield pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def one_thread_worker() -> None:
+    """A pool's initializer: torch on one thread (one process per core, no intra-op threads
+    on top) and malloc keeping freed tensor memory (``tactile_bench.allocator``: the pool
+    owns its processes)."""
+    from tactile_bench.allocator import keep_freed_memory
+
+    torch.set_num_threads(1)
+    keep_freed_memory()
 
 
 #: this process's kept pools, by worker count

@@ -12,7 +12,6 @@ one thread each.
 from __future__ import annotations
 
 import dataclasses
-import time
 import warnings
 from collections.abc import Iterator
 from concurrent.futures import as_completed
@@ -24,14 +23,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from tactile_bench.allocator import keep_freed_memory
 from tactile_bench.geometry.objects import object_parts
 from tactile_bench.geometry.trajectories import exposed_surface, sliding_trajectories
-from tactile_bench.pools import cancel_pending, spawned_pool
+from tactile_bench.pools import cancel_pending, one_thread_worker, spawned_pool
 from tactile_bench.sensor.depth import GelSpec
 from tactile_bench.sensor.mesh_depth import MeshDepthRenderer
 from tactile_bench.sensor.optics import SimOptics
-from tactile_bench.sensor.timing import SpanTimer, active_timer, timed_span
+from tactile_bench.sensor.timing import active_timer, run_timed, timed_span
 
 from .corpus import CorpusPairs
 from .pixels import to_uint8
@@ -164,20 +162,9 @@ def build_object(job: ObjectJob) -> Built:
     return built
 
 
-def _worker_init() -> None:
-    torch.set_num_threads(1)  # one process per core: no intra-op threads on top
-    keep_freed_memory()  # the pool's own processes: see tactile_bench.allocator
-
-
-def _build_object_timed(job: ObjectJob) -> tuple[dict[int, int], dict | None]:
+def _build_object_timed(job: ObjectJob) -> tuple[Built, dict | None]:
     """``build_object`` in a worker process, with its span times when the parent times."""
-    if not job.timing:
-        return build_object(job), None
-    cpu = time.process_time()
-    with SpanTimer() as timer:
-        built = build_object(job)
-    times = {"wall": dict(timer.wall), "cpu": dict(timer.cpu)}
-    return built, {**times, "process_cpu": time.process_time() - cpu}
+    return run_timed(build_object, job) if job.timing else (build_object(job), None)
 
 
 def split_jobs(jobs: list[ObjectJob], workers: int) -> list[ObjectJob]:
@@ -243,7 +230,7 @@ def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[tuple[ObjectJob, B
         job.timing = timer is not None
     left = list(jobs)
     try:
-        with spawned_pool(workers, initializer=_worker_init) as pool:
+        with spawned_pool(workers, initializer=one_thread_worker) as pool:
             futures = {pool.submit(_build_object_timed, job): job for job in jobs}
             try:
                 for future in as_completed(futures):
@@ -251,7 +238,7 @@ def run_jobs(jobs: list[ObjectJob], workers: int) -> Iterator[tuple[ObjectJob, B
                     job = futures[future]
                     left.remove(job)
                     if timer is not None and times is not None:
-                        timer.merge(times["wall"], times["cpu"], times["process_cpu"])
+                        timer.merge_times(times)
                     yield job, built
             finally:  # an error or an interrupt: do not leave the pool busy with the rest
                 cancel_pending(futures)

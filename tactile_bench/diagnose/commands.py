@@ -169,18 +169,6 @@ def summary_lines(result: Diagnosis) -> list[str]:
     )
 
 
-def add_workers_argument(parser: Any) -> None:
-    """``--workers`` of a command that diagnoses."""
-    parser.add_argument(
-        "--workers",
-        default="1",
-        metavar="N",
-        help="processes the diagnosis's fits run in side by side, one torch thread each "
-        "(auto: one per core, at most 8; default 1: all in this process, which on 2 cores "
-        "is as fast: docs/results/diagnosis_speed.md)",
-    )
-
-
 def _cmd_diagnose(ns: argparse.Namespace) -> int:
     from tactile_bench.diagnose.paired import detect_layout, load_paired
     from tactile_bench.diagnose.run import check_candidates, diagnose, stratified_split
@@ -414,7 +402,14 @@ def _add_diagnose(subparsers: Any) -> None:
         help="also print where the time went: calls and seconds of every timed span "
         "(always in report.json's timing_s.breakdown)",
     )
-    add_workers_argument(diag)
+    diag.add_argument(
+        "--workers",
+        default="1",
+        metavar="N",
+        help="processes the diagnosis's fits run in side by side, one torch thread each "
+        "(auto: one per core, at most 8; default 1: all in this process, which on 2 cores "
+        "is as fast: docs/results/diagnosis_speed.md)",
+    )
     diag.add_argument("--no-progress", action="store_true")
     diag.set_defaults(func=_cmd_diagnose, omp_wait_policy=KEEP_OMP_WAIT_POLICY)
 

@@ -18,20 +18,16 @@ process seconds, not wall).
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-import torch
-
-from tactile_bench.allocator import keep_freed_memory
 from tactile_bench.diagnose.breakdown import WAIT_WORKERS
 from tactile_bench.errors import TactileBenchError
-from tactile_bench.pools import cancel_pending, spawned_pool
-from tactile_bench.sensor.timing import SpanTimer, active_timer, timed_span
+from tactile_bench.pools import cancel_pending, one_thread_worker, spawned_pool
+from tactile_bench.sensor.timing import SpanTimer, active_timer, run_timed, timed_span
 
 T = TypeVar("T")
 #: most workers ``auto`` opens: a round fits at most 14 candidates, and each worker holds
@@ -39,7 +35,7 @@ T = TypeVar("T")
 MAX_AUTO_WORKERS = 8
 MAX_WORKERS = 64  # more processes than any round has fits
 
-_POOL: tuple[ProcessPoolExecutor, int] | None = None  # the open workers and their count
+_POOL: ProcessPoolExecutor | None = None  # the open workers
 
 
 def auto_workers() -> int:
@@ -63,11 +59,6 @@ def parse_workers(value: str | int | None, key: str = "--workers") -> int:
     return n
 
 
-def _worker_init() -> None:
-    torch.set_num_threads(1)  # one process per core: no intra-op threads on top
-    keep_freed_memory()  # the pool's own processes (tactile_bench.allocator)
-
-
 @contextmanager
 def fit_workers(n: int) -> Iterator[None]:
     """Within the block, ``map_fits`` spreads fits over ``n`` spawned processes (1: none,
@@ -77,8 +68,8 @@ def fit_workers(n: int) -> Iterator[None]:
     if n <= 1 or _POOL is not None:
         yield
         return
-    with spawned_pool(n, initializer=_worker_init) as pool:
-        _POOL = (pool, n)
+    with spawned_pool(n, initializer=one_thread_worker) as pool:
+        _POOL = pool
         try:
             yield
         finally:
@@ -91,19 +82,7 @@ def _in_worker(
     """``fn(*args)`` in a worker: its value, the lookups it added to ``reference`` and,
     when the parent times, its spans."""
     known = set(reference.lookups) if reference is not None else set()
-    cpu = time.process_time()
-    if timing:
-        with SpanTimer() as timer:
-            value = fn(*args)
-        times = {
-            "wall": dict(timer.wall),
-            "cpu": dict(timer.cpu),
-            "calls": dict(timer.calls),
-            "inclusive": dict(timer.inclusive),
-            "process_cpu": time.process_time() - cpu,
-        }
-    else:
-        value, times = fn(*args), None
+    value, times = run_timed(fn, *args) if timing else (fn(*args), None)
     added = {} if reference is None else {
         k: v for k, v in reference.lookups.items() if k not in known
     }  # fmt: skip
@@ -129,7 +108,7 @@ def map_fits(
             if done is not None:
                 done(i)
         return out
-    pool, _ = _POOL
+    pool = _POOL
     timer = active_timer()
     with timed_span(WAIT_WORKERS):
         futures: dict[Future[Any], int] = {
@@ -162,7 +141,5 @@ def _collect(future: Future[Any], reference: Any, timer: SpanTimer | None) -> An
         for key, table in added.items():
             reference.lookups.setdefault(key, table)
     if timer is not None and times is not None:
-        timer.merge(
-            times["wall"], times["cpu"], times["process_cpu"], times["calls"], times["inclusive"]
-        )
+        timer.merge_times(times)
     return value

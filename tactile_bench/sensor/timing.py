@@ -12,8 +12,11 @@ from __future__ import annotations
 import threading
 import time
 from collections import defaultdict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 _ACTIVE: SpanTimer | None = None
 
@@ -86,6 +89,27 @@ class SpanTimer:
                 self.calls[name] += count
             for name, seconds in (inclusive or {}).items():
                 self.inclusive[name] += seconds
+
+    def merge_times(self, times: dict[str, Any]) -> None:
+        """Add the span times ``run_timed`` recorded in another process."""
+        self.merge(
+            times["wall"], times["cpu"], times["process_cpu"], times["calls"], times["inclusive"]
+        )
+
+
+def run_timed(fn: Callable[..., T], *args: Any) -> tuple[T, dict[str, Any]]:
+    """``fn(*args)`` under a fresh ``SpanTimer``: its value and its span times, which a
+    worker process sends back for its parent's ``SpanTimer.merge_times``."""
+    cpu = time.process_time()
+    with SpanTimer() as timer:
+        value = fn(*args)
+    return value, {
+        "wall": dict(timer.wall),
+        "cpu": dict(timer.cpu),
+        "calls": dict(timer.calls),
+        "inclusive": dict(timer.inclusive),
+        "process_cpu": time.process_time() - cpu,
+    }
 
 
 def active_timer() -> SpanTimer | None:
