@@ -233,7 +233,7 @@ def _train(setup: _Classifiers, inputs: list[torch.Tensor]) -> list[Any]:
     quiet = {"enable_checkpointing": False, "enable_progress_bar": False}
     logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
     n = len(inputs[0])
-    rows = [torch.arange(n) + k * n for k in range(len(inputs))]
+    rows = [torch.arange(n, device=inputs[0].device) + k * n for k in range(len(inputs))]
     with tempfile.TemporaryDirectory() as tmp:
         return train_classifiers(
             torch.cat(inputs), setup.y_train.repeat(len(inputs)), [setup.config] * len(inputs),

@@ -251,7 +251,7 @@ def _gap_problem(
         reference = fit_reference(data, fit_idx)
         fit = (make_scene(data, fit_idx, reference).precompute(), Target.of(data.real[fit_idx]))
         held = (make_scene(data, held_idx, reference).precompute(), Target.of(data.real[held_idx]))
-        n_screen = torch.arange(min(len(fit_idx), SCREEN_PAIRS))
+        n_screen = torch.arange(min(len(fit_idx), SCREEN_PAIRS), device=fit_idx.device)
         pairs = data.subset(held_idx)
         return GapProblem(
             fit=fit,
